@@ -1,0 +1,407 @@
+"""The Baoding-balls task: rotate two balls 180 degrees around each other in a palm-up hand.
+
+One file, in the shape of MuJoCo Playground's tasks: a config, the batched env class
+(reset, step, observation, reward terms, termination), domain randomisation beside it.
+Rules follow the TacGNN paper and its authors' code (see docs/environment.md):
+
+* Observation (54): joint positions scaled to [-1, 1] (16), 0.2 x joint velocities (16),
+  ball positions (6; by `obs_mode`), last action (16). ``finger_torque`` replaces the ball
+  positions by the 16 actuator torques (64 values); ``tactile`` returns a dict with the
+  raw skin output instead of ball positions.
+* Action (16): absolute joint targets, [-1, 1] mapped onto each joint's range.
+* Angle: of the vector from ball 0 to ball 1 in the palm plane, unwrapped, signed by
+  `direction`. Reward = 0.5 x (angle change, deg) - 0.0002 |a|^2, +250 on success,
+  -100 when a ball falls, -50 on timeout (named terms in ``info["reward_terms"]``).
+* Tasks: simple (succeed at `success_angle_deg`), middle (plus a random-direction
+  force ~ N(0, 0.1) N on each ball every 10 steps), hard (middle, then hold 5 steps).
+
+Ball positions, skin readings and taxel positions are all taken at one instant, the
+start of the last physics substep of the control step, so that a perception model's
+input and its label match exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+from tacgnn.config import check
+from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
+from tacgnn.hand.allegro import FINGER_RANGES, THUMB_BAODING_RANGES, HandConfig
+from tacgnn.hand.skin_layout import SkinLayout, default_skin
+from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
+
+ObsMode = Literal["groundtruth", "no_perception", "finger_torque", "noise_2", "noise_4",
+                  "noise_10", "perceived", "tactile"]
+# Uniform noise (m) on the ball positions for the paper's NOISE_* ablations; the authors'
+# code used +-2, +-5 and +-10 mm for NOISE_2, NOISE_4 and NOISE_10.
+ABLATION_NOISE = {"noise_2": 0.002, "noise_4": 0.005, "noise_10": 0.010}
+BAODING_RANGES = FINGER_RANGES * 3 + THUMB_BAODING_RANGES
+BALLS = ("ball_0", "ball_1")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    rotation: float = 0.5
+    """Per degree of rotation in the task's direction."""
+    action: float = -0.0002
+    """Times |a|^2."""
+    success: float = 250.0
+    fall: float = -100.0
+    timeout: float = -50.0
+
+
+@dataclass(frozen=True)
+class RandomizationConfig:
+    """Per-env physics drawn at every reset (the paper's domain randomisation)."""
+
+    enabled: bool = False
+    ball_mass: tuple[float, float] = (0.1, 0.2)
+    friction_scale: tuple[float, float] = (0.8, 1.2)
+    gravity: tuple[float, float] = (7.0, 12.0)
+    stiffness_scale: tuple[float, float] = (0.8, 1.2)
+    damping_scale: tuple[float, float] = (0.8, 1.2)
+
+    def __post_init__(self) -> None:
+        for name in ("ball_mass", "friction_scale", "gravity", "stiffness_scale", "damping_scale"):
+            lo, hi = getattr(self, name)
+            check(0 < lo <= hi, f"randomization.{name}", f"needs 0 < low <= high, got ({lo}, {hi})")
+
+
+@dataclass(frozen=True)
+class BaodingConfig:
+    num_envs: int = 64
+    task: Literal["simple", "middle", "hard"] = "simple"
+    obs_mode: ObsMode = "groundtruth"
+    hand: HandConfig = field(default_factory=lambda: HandConfig(joint_ranges=BAODING_RANGES))
+    skin: SkinLayout = field(default_factory=default_skin)
+    sim: SimConfig = field(default_factory=SimConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    control_dt: float = 0.02
+    max_episode_steps: int = 200
+    ball_radius: float = 0.02625
+    ball_mass: float = 0.15
+    ball_friction: float = 1.0
+    spawn_offsets: tuple[tuple[float, float, float], tuple[float, float, float]] = (
+        (0.028, -0.01, 0.05), (-0.028, -0.01, 0.05))
+    """Ball centres at reset relative to the hand origin (world frame, m)."""
+    spawn_noise: float = 0.01
+    """Uniform +- noise (m) on each ball's x and y at reset."""
+    initial_joint_pos: tuple[float, ...] = (0.0, 0.9, 0.9, 0.6) * 3 + (0.8, 0.2, 0.85, 0.5)
+    joint_noise: float = 0.03
+    """Uniform +- noise (rad) on the initial joint positions (clipped to the ranges)."""
+    success_angle_deg: float = 180.0
+    direction: int = 1
+    """+1: counter-clockwise seen from above the palm; -1: clockwise."""
+    disturbance_interval: int = 10
+    disturbance_std: float = 0.1
+    """Std (N) of the disturbing force's magnitude on each ball, middle and hard tasks."""
+    hold_steps: int = 5
+    fall_height: tuple[float, float] = (0.0, 0.15)
+    """A ball has fallen when its height above the palm plane leaves this band (m) ..."""
+    fall_radius: float = 0.13
+    """... or its distance from the palm centre along the palm exceeds this (m)."""
+    tactile: bool = True
+    """Compute the skin every step (needed by 'tactile' and 'perceived' observations)."""
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check(self.num_envs >= 1, "num_envs", f"must be >= 1, got {self.num_envs}")
+        check(self.max_episode_steps >= 1, "max_episode_steps", "must be >= 1")
+        check(self.ball_radius > 0, "ball_radius", f"must be positive, got {self.ball_radius}")
+        check(self.ball_mass > 0, "ball_mass", f"must be positive, got {self.ball_mass}")
+        check(self.ball_friction > 0, "ball_friction", "must be positive")
+        check(len(self.initial_joint_pos) == NUM_JOINTS, "initial_joint_pos", "needs 16 values")
+        check(self.control_dt > 0, "control_dt", "must be positive")
+        check(self.success_angle_deg > 0, "success_angle_deg", "must be positive")
+        check(self.direction in (1, -1), "direction", "must be +1 or -1")
+        check(self.disturbance_interval >= 1, "disturbance_interval", "must be >= 1")
+        check(self.disturbance_std >= 0, "disturbance_std", "must be >= 0")
+        check(self.hold_steps >= 0, "hold_steps", "must be >= 0")
+        check(self.fall_height[0] < self.fall_height[1], "fall_height", "needs low < high")
+        check(self.spawn_noise >= 0 and self.joint_noise >= 0, "spawn_noise", "noise must be >= 0")
+        check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
+              f"obs_mode '{self.obs_mode}' needs tactile: true")
+
+
+class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
+    """`num_envs` Baoding envs stepped together; gymnasium VectorEnv, same-step autoreset.
+
+    ``step`` returns the first observation of the next episode for envs that ended;
+    their last observation is in ``info["final_obs"]`` (rows where ``info["_final_obs"]``).
+    ``info`` also holds per-env arrays: ``reward_terms``, ``angle_deg``, ``success``,
+    ``fall``, ``timeout``, ``diverged``, and with the skin on ``tactile`` (N, T) and
+    ``taxel_pos`` (N, T, 3) and ``ball_pos`` (N, 2, 3), all of the step just taken.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_fps": 50}
+
+    def __init__(self, config: BaodingConfig | None = None,
+                 perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None):
+        cfg = config or BaodingConfig()
+        self.config = cfg
+        spec = hand_scene(cfg.hand, cfg.sim)
+        for name, offset, rgba in zip(BALLS, cfg.spawn_offsets, ((0.85, 0.3, 0.2, 1), (0.2, 0.4, 0.85, 1))):
+            add_sphere(spec, name, cfg.ball_radius, cfg.ball_mass, offset, cfg.ball_friction, rgba)
+        HandEnvBase.__init__(self, spec, cfg.hand, cfg.skin, cfg.sim, cfg.num_envs, cfg.control_dt)
+        self.perception = perception
+        m = self.model
+        self.ball_body = np.array([m.body(b).id for b in BALLS])
+        self.ball_qpos_adr = np.array([m.joint(f"{b}_free").qposadr[0] for b in BALLS])
+        self.ball_dof_adr = np.array([m.joint(f"{b}_free").dofadr[0] for b in BALLS])
+        self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
+        self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
+        self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
+
+        n = cfg.num_envs
+        self.episode_steps = np.zeros(n, np.int64)
+        self.angle = np.zeros(n)  # unwrapped, signed by direction, rad
+        self.vec_angle = np.zeros(n)  # last wrapped angle of the ball-to-ball vector
+        self.hold_count = np.full(n, -1, np.int64)  # >= 0 while holding after reaching the angle
+        self.last_action = np.zeros((n, NUM_JOINTS))
+        self._rng = np.random.default_rng(cfg.seed)
+
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
+        self.single_observation_space = self._make_obs_space()
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, n)
+        self._reset_envs(np.arange(n))
+
+    # --- spaces and observations ---------------------------------------------------------
+    def _make_obs_space(self) -> gym.Space:
+        t = self.tactile.num_taxels
+        if self.config.obs_mode == "tactile":
+            return gym.spaces.Dict({
+                "proprio": gym.spaces.Box(-np.inf, np.inf, (3 * NUM_JOINTS,), np.float32),
+                "tactile": gym.spaces.Box(0.0, np.inf, (t,), np.float32),
+                "taxel_pos": gym.spaces.Box(-np.inf, np.inf, (t, 3), np.float32),
+            })
+        dim = 4 * NUM_JOINTS if self.config.obs_mode == "finger_torque" else 3 * NUM_JOINTS + 6
+        return gym.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
+
+    def ball_positions(self) -> np.ndarray:
+        """(N, 2, 3) ball centres relative to the hand origin (world axes, m)."""
+        return self.sim.xpos[:, self.ball_body].copy()
+
+    def _object_obs(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> np.ndarray:
+        mode = self.config.obs_mode
+        balls = self.ball_positions()[ids].reshape(len(ids), 6)
+        if mode == "groundtruth":
+            return balls
+        if mode == "no_perception":
+            return np.zeros_like(balls)
+        if mode == "finger_torque":
+            return self.sim.actuator_force[ids]
+        if mode in ABLATION_NOISE:
+            return balls + self._rng.uniform(-1, 1, balls.shape) * ABLATION_NOISE[mode]
+        if mode == "perceived":
+            if self.perception is None:
+                raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
+            return np.asarray(self.perception(tactile, taxel_pos), dtype=np.float64).reshape(len(ids), 6)
+        raise AssertionError(mode)
+
+    def _observe(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
+        proprio = np.concatenate([
+            self.ctrl_to_action(self.joint_pos[ids]), 0.2 * self.joint_vel[ids]], axis=1)
+        if self.config.obs_mode == "tactile":
+            return {"proprio": np.concatenate([proprio, self.last_action[ids]], 1).astype(np.float32),
+                    "tactile": tactile, "taxel_pos": taxel_pos}
+        obj = self._object_obs(ids, tactile, taxel_pos)
+        return np.concatenate([proprio, obj, self.last_action[ids]], axis=1).astype(np.float32)
+
+    def _skin(self, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        if not self.config.tactile:
+            return None, None
+        sim = self.sim
+        readings = self.tactile.readings(sim.sensordata[ids], sim.xpos[ids], sim.xmat[ids], self._rng)
+        return readings, self.tactile.positions(sim.xpos[ids], sim.xmat[ids])
+
+    # --- reset -------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+        ids = np.arange(self.num_envs)
+        self._reset_envs(ids)
+        tactile, taxel_pos = self._skin(ids)
+        return self._observe(ids, tactile, taxel_pos), {}
+
+    def _reset_envs(self, ids: np.ndarray) -> None:
+        cfg, sim, rng = self.config, self.sim, self._rng
+        if len(ids) == 0:
+            return
+        sim.reset(ids)
+        if cfg.randomization.enabled:
+            randomize(self, ids, rng)
+        q0 = self.initial_ctrl + rng.uniform(-cfg.joint_noise, cfg.joint_noise, (len(ids), NUM_JOINTS))
+        q0 = np.clip(q0, self.joint_low, self.joint_high)
+        qpos = sim.qpos[ids]
+        qpos[:, self.joint_qpos_adr] = q0
+        for b, offset in enumerate(cfg.spawn_offsets):
+            pos = np.asarray(offset) + np.concatenate(
+                [rng.uniform(-cfg.spawn_noise, cfg.spawn_noise, (len(ids), 2)), np.zeros((len(ids), 1))], 1)
+            adr = self.ball_qpos_adr[b]
+            qpos[:, adr:adr + 3] = pos
+            qpos[:, adr + 3:adr + 7] = (1.0, 0.0, 0.0, 0.0)
+        sim.qpos[ids] = qpos
+        sim.qvel[ids] = 0.0
+        sim.ctrl[ids] = q0
+        sim.xfrc_applied[ids] = 0.0
+        sim.forward(ids)
+        self.last_action[ids] = self.ctrl_to_action(q0)
+        self.episode_steps[ids] = 0
+        self.angle[ids] = 0.0
+        self.vec_angle[ids] = self._ball_vector_angle(ids)
+        self.hold_count[ids] = -1
+
+    # --- step --------------------------------------------------------------------------
+    def step(self, actions: np.ndarray):
+        cfg, sim = self.config, self.sim
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, NUM_JOINTS):
+            raise ValueError(f"actions must have shape ({self.num_envs}, {NUM_JOINTS}), got {actions.shape}")
+        if not np.isfinite(actions).all():
+            raise ValueError(f"non-finite actions in envs {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
+        actions = np.clip(actions, -1.0, 1.0)
+        sim.ctrl[:] = self.action_to_ctrl(actions)
+        self._apply_disturbances()
+        diverged = sim.step(self.substeps)
+        self.episode_steps += 1
+        self.last_action[:] = actions
+
+        all_ids = np.arange(self.num_envs)
+        if diverged.any():  # keep NaN out of everything computed below; these envs reset
+            self._scrub(diverged)
+        tactile, taxel_pos = self._skin(all_ids)
+        balls = self.ball_positions()
+        d_angle = self._update_angle(all_ids)
+        fall = self._fallen(balls)
+        reached = self.angle >= np.deg2rad(cfg.success_angle_deg)
+        success = self._success(reached, fall)
+        timeout = (self.episode_steps >= cfg.max_episode_steps) & ~success & ~fall
+        terms = self._reward_terms(d_angle, actions, success, fall, timeout)
+        reward = sum(terms.values())
+        terminated = success | fall | diverged
+        truncated = timeout & ~terminated
+        # A diverged env's step is not a step: no reward from it.
+        reward = np.where(diverged, 0.0, reward)
+        for term in terms.values():
+            term[diverged] = 0.0
+
+        info: dict[str, Any] = {
+            "reward_terms": terms, "angle_deg": np.rad2deg(self.angle), "success": success & ~diverged,
+            "fall": fall & ~diverged, "timeout": truncated, "diverged": diverged,
+            "episode_steps": self.episode_steps.copy(), "ball_pos": balls,
+        }
+        if tactile is not None:
+            info["tactile"], info["taxel_pos"] = tactile, taxel_pos
+        obs = self._observe(all_ids, tactile, taxel_pos)
+        done = np.flatnonzero(terminated | truncated)
+        if len(done):
+            info["final_obs"], info["_final_obs"] = obs, terminated | truncated
+            obs = _copy_obs(obs)
+            self._reset_envs(done)
+            new_tactile, new_pos = self._skin(done)
+            _assign_obs(obs, done, self._observe(done, new_tactile, new_pos))
+        return obs, reward.astype(np.float32), terminated, truncated, info
+
+    def _scrub(self, ids: np.ndarray) -> None:
+        """Put diverged envs back at their reset state, so no NaN leaves this step.
+
+        Their episode still ends in this step (with zero reward) and restarts fresh.
+        """
+        ids = np.flatnonzero(ids)
+        self.sim.reset(ids)
+        self.sim.qpos[ids] = self.model.qpos0
+        self.sim.forward(ids)
+        self.vec_angle[ids] = self._ball_vector_angle(ids)
+
+    def _apply_disturbances(self) -> None:
+        cfg, xfrc = self.config, self.sim.xfrc_applied
+        xfrc[:] = 0.0
+        if cfg.task == "simple":
+            return
+        kick = (self.episode_steps % cfg.disturbance_interval == 0) & (self.episode_steps > 0)
+        ids = np.flatnonzero(kick)
+        if len(ids) == 0:
+            return
+        for body in self.ball_body:
+            direction = self._rng.standard_normal((len(ids), 3))
+            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+            magnitude = self._rng.normal(0.0, cfg.disturbance_std, (len(ids), 1))
+            xfrc[ids, body, :3] = direction * magnitude
+
+    # --- task rules --------------------------------------------------------------------
+    def _ball_vector_angle(self, ids: np.ndarray) -> np.ndarray:
+        balls = self.sim.xpos[ids][:, self.ball_body]
+        v = (balls[:, 1] - balls[:, 0]) @ self.palm_axes  # palm coordinates
+        return np.arctan2(v[:, 2], v[:, 1])
+
+    def _update_angle(self, ids: np.ndarray) -> np.ndarray:
+        """Accumulate the wrapped change of the ball-to-ball angle; return it (rad)."""
+        new = self._ball_vector_angle(ids)
+        delta = (new - self.vec_angle[ids] + np.pi) % (2 * np.pi) - np.pi
+        self.vec_angle[ids] = new
+        delta *= self.config.direction
+        self.angle[ids] += delta
+        return delta
+
+    def _fallen(self, balls: np.ndarray) -> np.ndarray:
+        rel = (balls - self.palm_centre) @ self.palm_axes  # (N, 2, 3) palm coordinates
+        lo, hi = self.config.fall_height
+        out = (rel[..., 0] < lo) | (rel[..., 0] > hi) | (np.linalg.norm(rel[..., 1:], axis=-1) > self.config.fall_radius)
+        return out.any(axis=1)
+
+    def _success(self, reached: np.ndarray, fall: np.ndarray) -> np.ndarray:
+        if self.config.task != "hard":
+            return reached & ~fall
+        holding = self.hold_count >= 0
+        self.hold_count[holding] += 1
+        self.hold_count[reached & ~holding] = 0
+        return (self.hold_count >= self.config.hold_steps) & ~fall
+
+    def _reward_terms(self, d_angle, actions, success, fall, timeout) -> dict[str, np.ndarray]:
+        w = self.config.reward
+        return {
+            "rotation": w.rotation * np.rad2deg(d_angle),
+            "action": w.action * np.sum(actions**2, axis=1),
+            "success": w.success * success,
+            "fall": w.fall * fall,
+            "timeout": w.timeout * timeout,
+        }
+
+
+def _copy_obs(obs):
+    return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+
+
+def _assign_obs(obs, ids, new) -> None:
+    if isinstance(obs, dict):
+        for k in obs:
+            obs[k][ids] = new[k]
+    else:
+        obs[ids] = new
+
+
+def randomize(env: BaodingEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
+    """Draw the physics of envs `ids` from the config's randomisation ranges."""
+    r, cfg, sim, model = env.config.randomization, env.config, env.sim, env.model
+    n = len(ids)
+    mass = sim.expand("body_mass")
+    inertia = sim.expand("body_inertia")
+    m = rng.uniform(*r.ball_mass, (n, len(env.ball_body)))
+    mass[np.ix_(ids, env.ball_body)] = m
+    inertia[np.ix_(ids, env.ball_body)] = (0.4 * cfg.ball_radius**2 * m)[..., None]
+    friction = sim.expand("geom_friction")
+    friction[ids, :, 0] = model.geom_friction[:, 0] * rng.uniform(*r.friction_scale, (n, 1))
+    sim.expand("opt.gravity")[ids] = np.stack(
+        [np.zeros(n), np.zeros(n), -rng.uniform(*r.gravity, n)], axis=1)
+    kp = cfg.hand.stiffness * rng.uniform(*r.stiffness_scale, (n, NUM_JOINTS))
+    sim.expand("actuator_gainprm")[ids, :, 0] = kp
+    sim.expand("actuator_biasprm")[ids, :, 1] = -kp
+    damping = sim.expand("dof_damping")
+    damping[np.ix_(ids, env.joint_dof_adr)] = cfg.hand.damping * rng.uniform(*r.damping_scale, (n, NUM_JOINTS))

@@ -1,0 +1,71 @@
+"""Shared base of the batched hand environments: the hand, its skin and the physics batch.
+
+A task file (e.g. `baoding.py`) adds its objects to the scene, and implements reset,
+observation, reward and termination on top of what this base gives:
+
+* `sim`: the `BatchedSim` of `num_envs` envs,
+* `tactile`: the skin model, `tactile_readings()` and `taxel_positions()` for all envs,
+* `action_to_ctrl`: the paper's action mapping, [-1, 1] onto each joint's range,
+* joint position/velocity views and the physics substeps of one control step.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from tacgnn.hand.allegro import HandConfig
+from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.sim.batched import BatchedSim
+from tacgnn.sim.scene import SimConfig, compile_with_skin
+from tacgnn.sim.tactile import TactileModel
+
+NUM_JOINTS = 16
+
+
+class HandEnvBase:
+    """Builds the batched simulation of a scene that holds the hand and the skin."""
+
+    def __init__(self, spec: mujoco.MjSpec, hand: HandConfig, skin: SkinLayout, sim: SimConfig,
+                 num_envs: int, control_dt: float):
+        substeps = control_dt / sim.timestep
+        if abs(substeps - round(substeps)) > 1e-6:
+            raise ValueError(f"control_dt {control_dt} must be a multiple of sim.timestep {sim.timestep}")
+        self.substeps = int(round(substeps))
+        self.control_dt = control_dt
+        self.num_envs = num_envs
+        self.model = compile_with_skin(spec, skin, sim)
+        self.sim = BatchedSim(self.model, num_envs, nthread=sim.nthread)
+        self.tactile = TactileModel(skin, self.model)
+        lo, hi = np.asarray(hand.joint_ranges, dtype=np.float64).T
+        self.joint_low, self.joint_high = lo, hi
+        self.joint_qpos_adr = self.model.jnt_qposadr[:NUM_JOINTS].copy()
+        self.joint_dof_adr = self.model.jnt_dofadr[:NUM_JOINTS].copy()
+        self._rng = np.random.default_rng()
+
+    # --- the hand ----------------------------------------------------------------------
+    def action_to_ctrl(self, action: np.ndarray) -> np.ndarray:
+        """Absolute joint targets from actions in [-1, 1] (clipped), as in the paper."""
+        a = np.clip(action, -1.0, 1.0)
+        return self.joint_low + 0.5 * (a + 1.0) * (self.joint_high - self.joint_low)
+
+    def ctrl_to_action(self, ctrl: np.ndarray) -> np.ndarray:
+        return 2.0 * (ctrl - self.joint_low) / (self.joint_high - self.joint_low) - 1.0
+
+    @property
+    def joint_pos(self) -> np.ndarray:
+        return self.sim.qpos[:, self.joint_qpos_adr]
+
+    @property
+    def joint_vel(self) -> np.ndarray:
+        return self.sim.qvel[:, self.joint_dof_adr]
+
+    # --- the skin ----------------------------------------------------------------------
+    def tactile_readings(self, noisy: bool = True) -> np.ndarray:
+        """(N, T) taxel forces (N) at the start of the last physics substep."""
+        return self.tactile.readings(self.sim.sensordata, self.sim.xpos, self.sim.xmat,
+                                     self._rng if noisy else None)
+
+    def taxel_positions(self) -> np.ndarray:
+        """(N, T, 3) world positions (m) of all taxels, same instant as the readings."""
+        return self.tactile.positions(self.sim.xpos, self.sim.xmat)

@@ -1,0 +1,156 @@
+"""An Allegro-type 16-DoF hand, built in code with `mujoco.MjSpec`.
+
+Dimensions are the Allegro hand's published kinematics (right hand): in the palm
+frame z runs along the fingers, +x is the palmar side (fingers flex towards +x) and
++y is the thumb's side. Collision shapes are boxes and capsules (much faster than
+meshes). Joint 0 of each finger spreads it sideways (axis: palm normal), joints 1-3
+flex it. Each joint is driven by a position actuator with stiffness `stiffness`
+and joint damping `damping`, the two parameters system identification fits.
+
+The palm is fixed to the world, palm up: palm +x points to world +z, the fingers
+point along world +y, then the hand is tilted by `palm_tilt_deg` about world x
+(positive lowers the fingertips). The hand origin (the line of the finger bases)
+is the world origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from tacgnn.config import check
+
+FINGERS = ("index", "middle", "ring", "thumb")
+LINKS = ("base", "proximal", "medial", "distal")
+JOINT_NAMES = tuple(f"{f}_j{k}" for f in FINGERS for k in range(4))
+ACTUATOR_NAMES = tuple(f"{f}_a{k}" for f in FINGERS for k in range(4))
+
+# Joint limits (rad) used by the TacGNN authors for index, middle, ring (j0..j3).
+FINGER_RANGES = ((-0.47, 0.47), (-0.196, 1.61), (-0.174, 1.709), (-0.227, 1.618))
+# The Allegro thumb's full ranges, and the nearly frozen ranges of the Baoding task.
+THUMB_RANGES = ((0.263, 1.396), (-0.105, 1.163), (-0.189, 1.644), (-0.162, 1.719))
+THUMB_BAODING_RANGES = ((0.7, 0.9), (0.1, 0.3), (0.8, 0.9), (0.4, 0.6))
+DEFAULT_RANGES = FINGER_RANGES * 3 + THUMB_RANGES
+
+# Published Allegro geometry (m). Finger bases in the palm frame; 5 deg outward turn
+# of index and ring about the palm's x axis.
+FINGER_BASES = {
+    "index": ((0.0, 0.0435, -0.001542), (0.999048, -0.0436194, 0.0, 0.0)),
+    "middle": ((0.0, 0.0, 0.0007), (1.0, 0.0, 0.0, 0.0)),
+    "ring": ((0.0, -0.0435, -0.001542), (0.999048, 0.0436194, 0.0, 0.0)),
+}
+SEGMENT_OFFSETS = (0.0164, 0.054, 0.0384)  # base->proximal->medial->distal joints
+THUMB_BASE = ((-0.0182, 0.019333, -0.045987), (0.477714, -0.521334, -0.521334, -0.477714))
+THUMB_OFFSETS = ((-0.027, 0.005, 0.0399), (0.0, 0.0, 0.0177), (0.0, 0.0, 0.0514))
+LINK_HALF_XY = (0.0098, 0.01375)  # link cross-section 0.0196 x 0.0275
+PALM_HALF = (0.0204, 0.0565, 0.0475)
+PALM_CENTRE = (-0.0093, 0.0, -0.0475)
+PALM_MASS = 0.415
+TIP_RADIUS = 0.012
+
+# Geom collision classes: hand links touch objects, never each other.
+HAND_CONTYPE, HAND_CONAFFINITY = 1, 2
+OBJECT_CONTYPE, OBJECT_CONAFFINITY = 2, 3
+
+
+@dataclass(frozen=True)
+class HandConfig:
+    """Physical parameters of the hand."""
+
+    stiffness: float = 3.0
+    """Position-actuator gain kp (N m/rad); the authors' system identification grid is {1, 3, 5}."""
+    damping: float = 0.1
+    """Joint damping (N m s/rad); identification grid {0, 0.1, 0.5}."""
+    armature: float = 0.001
+    """Reflected motor inertia per joint (kg m^2); keeps the stiff joints stable at 5 ms steps."""
+    joint_ranges: tuple[tuple[float, float], ...] = DEFAULT_RANGES
+    """(low, high) in rad for the 16 joints: index j0-j3, middle, ring, thumb."""
+    palm_tilt_deg: float = 15.0
+    """Tilt of the palm-up hand about world x; positive lowers the fingertips."""
+    friction: float = 1.0
+    """Sliding friction of the hand's surfaces."""
+    link_density: float = 800.0
+    """Density of the finger links (kg/m^3)."""
+
+    def __post_init__(self) -> None:
+        check(len(self.joint_ranges) == 16, "hand.joint_ranges", f"needs 16 (low, high) pairs, got {len(self.joint_ranges)}")
+        for name, (lo, hi) in zip(JOINT_NAMES, self.joint_ranges):
+            check(lo < hi, "hand.joint_ranges", f"joint {name} has low {lo} >= high {hi}")
+        check(self.stiffness > 0, "hand.stiffness", f"must be positive, got {self.stiffness}")
+        check(self.damping >= 0, "hand.damping", f"must be >= 0, got {self.damping}")
+        check(self.armature >= 0, "hand.armature", f"must be >= 0, got {self.armature}")
+        check(self.friction > 0, "hand.friction", f"must be positive, got {self.friction}")
+        check(self.link_density > 0, "hand.link_density", f"must be positive, got {self.link_density}")
+
+    def palm_quat(self) -> np.ndarray:
+        """World orientation of the palm frame (w, x, y, z)."""
+        # palm x -> world z, palm y -> world x, palm z -> world y; then tilt about world x.
+        base = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+        a = -np.deg2rad(self.palm_tilt_deg)
+        tilt = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, (tilt @ base).flatten())
+        return quat
+
+
+def _box(body: mujoco.MjsBody, half: tuple, pos: tuple, density: float, name: str) -> None:
+    body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half), pos=list(pos),
+                  density=density, contype=HAND_CONTYPE, conaffinity=HAND_CONAFFINITY,
+                  rgba=[0.2, 0.2, 0.22, 1.0])
+
+
+def _link_box(body: mujoco.MjsBody, half_z: float, density: float, name: str) -> None:
+    _box(body, (*LINK_HALF_XY, half_z), (0.0, 0.0, half_z), density, name)
+
+
+def _tip(body: mujoco.MjsBody, half_len: float, z: float, name: str) -> None:
+    body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[TIP_RADIUS, half_len, 0],
+                  pos=[0, 0, z], density=800.0, contype=HAND_CONTYPE,
+                  conaffinity=HAND_CONAFFINITY, rgba=[0.9, 0.9, 0.9, 1.0])
+
+
+def _joint(body: mujoco.MjsBody, name: str, axis: tuple, rng: tuple, cfg: HandConfig) -> None:
+    body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=list(axis), range=list(rng),
+                   limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=cfg.damping,
+                   armature=cfg.armature)
+
+
+def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
+    """Add the hand (bodies, joints, geoms, position actuators) to `spec`'s world."""
+    spec.default.geom.friction = [cfg.friction, 0.005, 0.0001]
+    palm = spec.worldbody.add_body(name="palm", pos=[0, 0, 0], quat=list(cfg.palm_quat()))
+    palm.add_geom(name="palm_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(PALM_HALF),
+                  pos=list(PALM_CENTRE), mass=PALM_MASS, contype=HAND_CONTYPE,
+                  conaffinity=HAND_CONAFFINITY, rgba=[0.2, 0.2, 0.22, 1.0])
+    ranges = dict(zip(JOINT_NAMES, cfg.joint_ranges))
+    d = cfg.link_density
+    for finger, (pos, quat) in FINGER_BASES.items():
+        body = palm.add_body(name=f"{finger}_base", pos=list(pos), quat=list(quat))
+        _joint(body, f"{finger}_j0", (1, 0, 0), ranges[f"{finger}_j0"], cfg)
+        _link_box(body, 0.0082, d, f"{finger}_base_geom")
+        for k, (link, offset) in enumerate(zip(LINKS[1:], SEGMENT_OFFSETS), start=1):
+            body = body.add_body(name=f"{finger}_{link}", pos=[0, 0, offset])
+            _joint(body, f"{finger}_j{k}", (0, 1, 0), ranges[f"{finger}_j{k}"], cfg)
+            half_z = {"proximal": 0.027, "medial": 0.0192, "distal": 0.008}[link]
+            _link_box(body, half_z, d, f"{finger}_{link}_geom")
+        _tip(body, 0.010, 0.019, f"{finger}_tip_geom")
+
+    body = palm.add_body(name="thumb_base", pos=list(THUMB_BASE[0]), quat=list(THUMB_BASE[1]))
+    _joint(body, "thumb_j0", (-1, 0, 0), ranges["thumb_j0"], cfg)
+    _box(body, (0.0179, 0.017, 0.02275), (-0.0179, 0.009, 0.0145), d, "thumb_base_geom")
+    axes = ((0, 0, 1), (0, 1, 0), (0, 1, 0))
+    halves = (0.00885, 0.0257, 0.0157)
+    for k, (link, offset, axis, half_z) in enumerate(zip(LINKS[1:], THUMB_OFFSETS, axes, halves), start=1):
+        body = body.add_body(name=f"thumb_{link}", pos=list(offset))
+        _joint(body, f"thumb_j{k}", axis, ranges[f"thumb_j{k}"], cfg)
+        _link_box(body, half_z, d, f"thumb_{link}_geom")
+    _tip(body, 0.008, 0.035, "thumb_tip_geom")
+
+    for joint, actuator in zip(JOINT_NAMES, ACTUATOR_NAMES):
+        lo, hi = ranges[joint]
+        act = spec.add_actuator(name=actuator, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.set_to_position(kp=cfg.stiffness)
+        act.ctrlrange = [lo, hi]
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE

@@ -1,0 +1,495 @@
+"""Perception models: one tactile frame -> object state (e.g. two ball centres).
+
+All models share one interface::
+
+    model(readings, positions) -> state
+    readings  (B, T)     normal force per taxel, 0 when not touched
+    positions (B, T, 3)  world position of every taxel (the caller passes cm)
+    state     (B, out_dim)
+
+Models (TacGNN, RA-L 2023, and its baselines):
+
+* :class:`TacGNN`  hierarchical dynamic-graph network on the *activated* taxels.
+* :class:`TactileMLP`  MLP on the raw readings.
+* :class:`TactileCNN`  CNN on the readings packed into a square image.
+* :class:`TactileGCN`  GCN on a fixed kNN graph of all taxels.
+
+Build them from a :class:`PerceptionModelConfig` with :func:`build_model`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from tacgnn.perception.graph_ops import FPS_STARTS, dense_fps, dense_knn, knn_graph, pairwise_sqdist, to_dense
+
+__all__ = [
+    "MODEL_NAMES",
+    "PerceptionModelConfig",
+    "PerceptionModel",
+    "TacGNN",
+    "EdgeMaxConv",
+    "TactileMLP",
+    "TactileCNN",
+    "TactileGCN",
+    "build_model",
+]
+
+MODEL_NAMES = ("tacgnn", "mlp", "cnn", "gcn")
+
+
+# --------------------------------------------------------------------------
+# config
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PerceptionModelConfig:
+    """Hyper-parameters of all perception models (unused fields are ignored).
+
+    Lists (e.g. from YAML) are turned into tuples; invalid values raise a
+    ``ValueError`` that names the field.
+    """
+
+    name: str = "tacgnn"
+    out_dim: int = 6
+    num_taxels: int = 653
+    # TacGNN
+    channels: int = 32  # C of every layer; the paper sweeps 16/32/64/128
+    k: tuple[int, ...] = (3, 3, 3)  # neighbours per layer; len(k) = number of layers
+    sample_ratio: float = 0.5  # FPS keeps ceil(ratio * n) nodes
+    downsample_layers: tuple[int, ...] = (0, 1, 2)  # FPS after these layers (0-based)
+    use_force: bool = False  # node input [x, y, z, force] instead of [x, y, z]
+    self_loop: bool = False  # let a node be its own neighbour
+    fps_start: str = "centroid"  # see graph_ops.FPS_STARTS; centroid = order independent
+    # MLP
+    mlp_hidden: tuple[int, ...] = (64, 64)
+    # CNN
+    image_size: int = 36
+    # GCN
+    gcn_k: int = 6
+    gcn_channels: tuple[int, ...] = (32, 32, 32)
+
+    def __post_init__(self) -> None:
+        for f in ("k", "downsample_layers", "mlp_hidden", "gcn_channels"):
+            v = getattr(self, f)
+            if isinstance(v, (list, tuple)):
+                object.__setattr__(self, f, tuple(v))
+            else:
+                raise ValueError(f"{f} must be a sequence of ints, got {v!r}")
+
+        def positive_int(field: str, v) -> None:
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{field} must be a positive int, got {v!r}")
+
+        if self.name not in MODEL_NAMES:
+            raise ValueError(f"name must be one of {MODEL_NAMES}, got {self.name!r}")
+        for f in ("out_dim", "num_taxels", "channels", "image_size", "gcn_k"):
+            positive_int(f, getattr(self, f))
+        for f in ("k", "mlp_hidden", "gcn_channels"):
+            if len(getattr(self, f)) == 0:
+                raise ValueError(f"{f} must not be empty")
+            for v in getattr(self, f):
+                positive_int(f, v)
+        if not isinstance(self.sample_ratio, (int, float)) or not 0.0 < self.sample_ratio <= 1.0:
+            raise ValueError(f"sample_ratio must be in (0, 1], got {self.sample_ratio!r}")
+        layers = range(len(self.k))
+        if any(isinstance(i, bool) or i not in layers for i in self.downsample_layers):
+            raise ValueError(f"downsample_layers must be layer indices in {list(layers)}, got {self.downsample_layers}")
+        if len(set(self.downsample_layers)) != len(self.downsample_layers):
+            raise ValueError(f"downsample_layers has duplicates: {self.downsample_layers}")
+        for f in ("use_force", "self_loop"):
+            if not isinstance(getattr(self, f), bool):
+                raise ValueError(f"{f} must be a bool, got {getattr(self, f)!r}")
+        if self.fps_start not in FPS_STARTS:
+            raise ValueError(f"fps_start must be one of {FPS_STARTS}, got {self.fps_start!r}")
+        if self.image_size**2 < self.num_taxels:
+            raise ValueError(f"image_size={self.image_size} too small for {self.num_taxels} taxels")
+
+
+# --------------------------------------------------------------------------
+# shared base
+# --------------------------------------------------------------------------
+class PerceptionModel(nn.Module):
+    """Base class: input checks shared by all models."""
+
+    num_taxels: int
+
+    def _check(self, readings: Tensor, positions: Tensor) -> None:
+        T = self.num_taxels
+        if readings.dim() != 2 or readings.shape[1] != T:
+            raise ValueError(f"readings must be (B, {T}), got {tuple(readings.shape)}")
+        if positions.shape != (readings.shape[0], T, 3):
+            raise ValueError(f"positions must be (B, {T}, 3), got {tuple(positions.shape)}")
+        if torch.isnan(readings).any():
+            raise ValueError("readings contain NaN")
+
+
+def _mlp(sizes: list[int]) -> nn.Sequential:
+    """Linear layers with ReLU in between (none after the last)."""
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+def _reset_all(module: nn.Module) -> None:
+    for m in module.modules():
+        if m is not module and hasattr(m, "reset_parameters"):
+            m.reset_parameters()
+
+
+# --------------------------------------------------------------------------
+# TacGNN
+# --------------------------------------------------------------------------
+class EdgeMaxConv(nn.Module):
+    r"""One TacGNN message-passing layer on a dense padded batch.
+
+    .. math::
+        h_i' = \mathrm{ReLU}\Big(\max_{j \in \mathcal{N}(i)}
+               \phi\big([h_i,\ h_j,\ x_j - x_i]\big)\Big),
+        \qquad \phi = \mathrm{Lin}_2 \circ \mathrm{ReLU} \circ \mathrm{Lin}_1
+
+    :math:`\phi` maps :math:`2C_{in} + 3 \to C`. A node without neighbours
+    gets :math:`h_i' = 0` (the PyG convention for an empty max).
+
+    Speed-up, exact in real arithmetic: split :math:`\mathrm{Lin}_1` by input
+    block, :math:`W [h_i, h_j, x_j - x_i] + b = a_i + c_j` with
+    :math:`a_i = W_i h_i - W_x x_i + b` and :math:`c_j = W_j h_j + W_x x_j`,
+    so one per-node matmul replaces the per-edge one and edges only gather.
+    The final ReLU is applied after the max (they commute).
+
+    Shapes:
+        - **input:** ``h (B, N, C_in)``, ``pos (B, N, 3)``,
+          ``neighbours (B, N, K)`` slots (invalid ones may hold any slot of
+          the same graph that is a real neighbour), ``has_neighbour (B, N)``
+        - **output:** ``(B, N, C)``
+    """
+
+    def __init__(self, in_channels: int, out_channels: int) -> None:
+        super().__init__()
+        self.in_channels, self.out_channels = in_channels, out_channels
+        self.lin1 = nn.Linear(2 * in_channels + 3, out_channels)
+        self.lin2 = nn.Linear(out_channels, out_channels)
+
+    def reset_parameters(self) -> None:
+        self.lin1.reset_parameters()
+        self.lin2.reset_parameters()
+
+    def forward(self, h: Tensor, pos: Tensor, neighbours: Tensor, has_neighbour: Tensor) -> Tensor:
+        B, N, K = neighbours.shape
+        C, Ci = self.out_channels, self.in_channels
+        if K == 0:
+            return h.new_zeros(B, N, C)
+        W_i, W_j, W_x = self.lin1.weight.split([Ci, Ci, 3], dim=1)
+        W = torch.cat([torch.cat([W_i, -W_x], 1), torch.cat([W_j, W_x], 1)], 0)  # (2C, Ci+3)
+        a, c = (torch.cat([h, pos], -1) @ W.t()).split(C, -1)
+        a = a + self.lin1.bias
+        flat = neighbours + (torch.arange(B, device=h.device) * N).view(B, 1, 1)
+        e = a.unsqueeze(2) + c.reshape(B * N, C)[flat]  # (B, N, K, C) = Lin1 per edge
+        e = self.lin2(torch.relu(e)).amax(2)
+        return torch.relu(e) * has_neighbour.unsqueeze(-1).to(e.dtype)
+
+
+class TacGNN(PerceptionModel):
+    r"""TacGNN: hierarchical dynamic-graph network over activated taxels.
+
+    Nodes are the taxels with reading > 0, node input :math:`h^0_i = x_i`
+    (position) or :math:`[x_i, f_i]` with ``use_force``. Layer
+    :math:`l = 1..L`:
+
+    1. rebuild the graph: :math:`\mathcal{N}(i)` = the :math:`k_l` nearest
+       current nodes (dynamic graph, recomputed every forward);
+    2. :class:`EdgeMaxConv`:
+       :math:`h^l_i = \mathrm{ReLU}(\max_{j} \phi_l([h^{l-1}_i, h^{l-1}_j, x_j - x_i]))`;
+    3. if ``l`` is in ``downsample_layers``: farthest point sampling keeps
+       :math:`\lceil r \cdot n \rceil` nodes (positions and features).
+
+    Readout: :math:`y = \mathrm{MLP}(\max_i h^L_i)` with MLP ``[C, C, out]``.
+    Features are ReLU outputs (:math:`\ge 0`), so padding and an empty frame
+    (the "tactile blind area") pool to 0 and give the finite output
+    :math:`\mathrm{MLP}(0)`.
+
+    Permutation invariance: kNN and max are set functions; FPS starts at the
+    node farthest from the centroid (``fps_start="centroid"``), so the output
+    does not depend on taxel order (up to exact distance ties).
+
+    Implementation: everything runs on a dense padded batch ``(B, N, C)``
+    with a node mask, N = most activated taxels in the batch, so there are no
+    scatter ops and no Python loops over frames. Graph building and sampling
+    run without autograd (they only produce indices).
+
+    Shapes:
+        - **input:** ``readings (B, T)``, ``positions (B, T, 3)``
+        - **output:** ``(B, out_dim)``
+    """
+
+    def __init__(
+        self,
+        out_dim: int = 6,
+        num_taxels: int = 653,
+        channels: int = 32,
+        k: tuple[int, ...] = (3, 3, 3),
+        sample_ratio: float = 0.5,
+        downsample_layers: tuple[int, ...] = (0, 1, 2),
+        use_force: bool = False,
+        self_loop: bool = False,
+        fps_start: str = "centroid",
+    ) -> None:
+        super().__init__()
+        self.num_taxels, self.out_dim = num_taxels, out_dim
+        self.k, self.sample_ratio = tuple(k), sample_ratio
+        self.downsample_layers = frozenset(downsample_layers)
+        self.use_force, self.self_loop, self.fps_start = use_force, self_loop, fps_start
+        in_ch = 4 if use_force else 3
+        self.convs = nn.ModuleList(
+            EdgeMaxConv(in_ch if l == 0 else channels, channels) for l in range(len(self.k))
+        )
+        self.head = _mlp([channels, channels, out_dim])
+
+    def reset_parameters(self) -> None:
+        _reset_all(self)
+
+    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
+        self._check(readings, positions)
+        active = readings > 0
+        b, t = active.nonzero(as_tuple=True)  # row-major: taxel order within a frame
+        B = readings.shape[0]
+        n_max = max(1, int(active.sum(1).max())) if B > 0 else 1
+        pos, mask = to_dense(positions[b, t], b, batch_size=B, max_nodes=n_max)
+        if torch.isnan(pos).any():
+            raise ValueError("positions of activated taxels contain NaN")
+        force = to_dense(readings[b, t], b, batch_size=B, max_nodes=n_max)[0] if self.use_force else None
+        return self.forward_dense(pos, mask, force)
+
+    def forward_pyg(self, data) -> Tensor:
+        """Interop: a torch_geometric ``Data``/``Batch`` whose nodes are the activated taxels.
+
+        Uses ``data.pos (V, 3)``, ``data.batch`` (``None`` = one graph) and,
+        with ``use_force``, ``data.x`` of shape ``(V,)`` or ``(V, 1)`` as force.
+        Returns ``(num_graphs, out_dim)``.
+        """
+        batch = getattr(data, "batch", None)
+        B = int(data.num_graphs) if batch is not None else 1
+        pos, mask = to_dense(data.pos, batch, batch_size=B)
+        if pos.shape[1] == 0:  # every graph empty: keep one padded slot
+            pos, mask = pos.new_zeros(B, 1, 3), mask.new_zeros(B, 1)
+        force = None
+        if self.use_force:
+            if data.x is None:
+                raise ValueError("use_force=True needs data.x (force per node)")
+            force = to_dense(data.x.reshape(-1), batch, batch_size=B, max_nodes=pos.shape[1])[0]
+        return self.forward_dense(pos, mask, force)
+
+    def forward_dense(self, pos: Tensor, mask: Tensor, force: Tensor | None = None) -> Tensor:
+        """Core network on a padded batch: ``pos (B, N, 3)``, ``mask (B, N)``, ``force (B, N)``."""
+        if not bool(mask.any()):  # whole batch in the blind area: pooled feature is 0
+            return self.head(pos.new_zeros(pos.shape[0], self.head[0].in_features))
+        h = pos if force is None else torch.cat([pos, force.unsqueeze(-1)], -1)
+        rows = torch.arange(pos.shape[0], device=pos.device).unsqueeze(1)
+        for l, conv in enumerate(self.convs):
+            with torch.no_grad():
+                D = pairwise_sqdist(pos)
+                nbr, valid = dense_knn(pos, mask, self.k[l], loop=self.self_loop, sqdist=D)
+                # Invalid slots repeat the nearest neighbour: max is unchanged.
+                nbr = torch.where(valid, nbr, nbr[..., :1])
+                has_nbr = valid[..., 0] if nbr.shape[-1] > 0 else mask
+            h = conv(h, pos, nbr, has_nbr)
+            if l in self.downsample_layers:
+                with torch.no_grad():
+                    idx, mask = dense_fps(pos, mask, self.sample_ratio, start=self.fps_start, sqdist=D)
+                pos, h = pos[rows, idx], h[rows, idx]
+        pooled = (h * mask.unsqueeze(-1).to(h.dtype)).amax(1)
+        return self.head(pooled)
+
+
+# --------------------------------------------------------------------------
+# baselines
+# --------------------------------------------------------------------------
+class TactileMLP(PerceptionModel):
+    r"""MLP baseline on the raw readings: :math:`y = \mathrm{MLP}(f)`, sizes ``[T, 64, 64, out]``.
+
+    Shapes:
+        - **input:** ``readings (B, T)``, ``positions (B, T, 3)`` (unused)
+        - **output:** ``(B, out_dim)``
+    """
+
+    def __init__(self, out_dim: int = 6, num_taxels: int = 653, hidden: tuple[int, ...] = (64, 64)) -> None:
+        super().__init__()
+        self.num_taxels, self.out_dim = num_taxels, out_dim
+        self.mlp = _mlp([num_taxels, *hidden, out_dim])
+
+    def reset_parameters(self) -> None:
+        _reset_all(self)
+
+    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
+        self._check(readings, positions)
+        return self.mlp(readings)
+
+
+class TactileCNN(PerceptionModel):
+    r"""CNN baseline on the readings packed into an ``S x S`` image (S = 36).
+
+    Taxel ``t`` goes to pixel ``layout[t] = (row, col)``; the default layout
+    is row-major (pixel ``t``), the remaining pixels are 0. Network:
+
+    ``conv3x3(1->32) ReLU maxpool2 -> conv3x3(32->16) ReLU maxpool2 -> flatten -> Linear(->128) ReLU -> Linear(->out)``
+
+    (valid convolutions: 36 -> 34 -> 17 -> 15 -> 7, i.e. 16 x 7 x 7 = 784
+    features, matching the paper's 784-128-6 head).
+
+    Shapes:
+        - **input:** ``readings (B, T)``, ``positions (B, T, 3)`` (unused)
+        - **output:** ``(B, out_dim)``
+    """
+
+    def __init__(
+        self,
+        out_dim: int = 6,
+        num_taxels: int = 653,
+        image_size: int = 36,
+        layout: Tensor | None = None,
+    ) -> None:
+        super().__init__()
+        self.num_taxels, self.out_dim, self.image_size = num_taxels, out_dim, image_size
+        S = image_size
+        if layout is None:
+            pixel = torch.arange(num_taxels)
+        else:
+            layout = torch.as_tensor(layout, dtype=torch.long)
+            if layout.shape != (num_taxels, 2) or layout.min() < 0 or layout.max() >= S:
+                raise ValueError(f"layout must be ({num_taxels}, 2) with (row, col) in [0, {S})")
+            pixel = layout[:, 0] * S + layout[:, 1]
+            if pixel.unique().numel() != num_taxels:
+                raise ValueError("layout maps two taxels to the same pixel")
+        self.register_buffer("pixel", pixel, persistent=False)
+        self.features = nn.Sequential(
+            nn.Conv2d(1, 32, 3), nn.ReLU(), nn.MaxPool2d(2),
+            nn.Conv2d(32, 16, 3), nn.ReLU(), nn.MaxPool2d(2),
+            nn.Flatten(),
+        )
+        side = ((S - 2) // 2 - 2) // 2
+        self.head = _mlp([16 * side * side, 128, out_dim])
+
+    def reset_parameters(self) -> None:
+        _reset_all(self)
+
+    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
+        self._check(readings, positions)
+        B, S = readings.shape[0], self.image_size
+        img = readings.new_zeros(B, S * S)
+        img[:, self.pixel] = readings
+        return self.head(self.features(img.view(B, 1, S, S)))
+
+
+class TactileGCN(PerceptionModel):
+    r"""GCN baseline on a fixed graph of all taxels.
+
+    The graph is built once from the rest positions: symmetric kNN (k = 6),
+    :math:`\hat A = \tilde D^{-1/2}(A + I)\tilde D^{-1/2}`. Node input
+    :math:`[f_i, x_i, y_i, z_i]` (force and *current* position). Layers
+    (``torch_geometric.nn.GCNConv``) :math:`H' = \mathrm{ReLU}(\hat A H W + b)`
+    with widths ``[32, 32, 32]``, then global max pool and MLP ``[32, out]``.
+
+    :math:`\hat A` is precomputed (``normalize=False``) and expanded to a
+    block-diagonal sparse matrix per batch size, so GCNConv runs one sparse
+    matmul per layer instead of re-normalising 653 * B nodes every call.
+
+    Shapes:
+        - **input:** ``readings (B, T)``, ``positions (B, T, 3)``
+        - **output:** ``(B, out_dim)``
+    """
+
+    def __init__(
+        self,
+        rest_positions: Tensor,
+        out_dim: int = 6,
+        k: int = 6,
+        channels: tuple[int, ...] = (32, 32, 32),
+    ) -> None:
+        super().__init__()
+        from torch_geometric.nn import GCNConv
+        from torch_geometric.utils import add_self_loops, to_undirected
+
+        rest = torch.as_tensor(rest_positions, dtype=torch.float32)
+        if rest.dim() != 2 or rest.shape[1] != 3 or torch.isnan(rest).any():
+            raise ValueError(f"rest_positions must be a finite (T, 3) tensor, got {tuple(rest.shape)}")
+        T = self.num_taxels = rest.shape[0]
+        self.out_dim = out_dim
+        ei = to_undirected(knn_graph(rest, k=k), num_nodes=T)
+        ei, _ = add_self_loops(ei, num_nodes=T)
+        deg = torch.bincount(ei[1], minlength=T).float()
+        w = deg[ei[0]].rsqrt() * deg[ei[1]].rsqrt()
+        self.register_buffer("edge_index", ei, persistent=False)
+        self.register_buffer("edge_weight", w, persistent=False)
+        sizes = [4, *channels]
+        self.convs = nn.ModuleList(GCNConv(sizes[i], sizes[i + 1], normalize=False) for i in range(len(channels)))
+        self.head = _mlp([channels[-1], channels[-1], out_dim])
+        self._adj_cache: tuple | None = None
+
+    def reset_parameters(self) -> None:
+        _reset_all(self)
+
+    def _batched_adjacency(self, B: int) -> Tensor:
+        """Block-diagonal sparse :math:`\\hat A` for B frames (cached per batch size)."""
+        key = (B, self.edge_index.device)
+        if self._adj_cache is None or self._adj_cache[0] != key:
+            T, E = self.num_taxels, self.edge_index.shape[1]
+            off = (torch.arange(B, device=self.edge_index.device) * T).view(1, B, 1)
+            ei = (self.edge_index.view(2, 1, E) + off).reshape(2, B * E)
+            # GCNConv takes the transposed adjacency: row = target, col = source
+            adj = torch.sparse_coo_tensor(ei.flip(0), self.edge_weight.repeat(B), (B * T, B * T))
+            self._adj_cache = (key, adj.coalesce().to_sparse_csr())
+        return self._adj_cache[1]
+
+    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
+        self._check(readings, positions)
+        B, T = readings.shape
+        x = torch.cat([readings.unsqueeze(-1), positions], -1).reshape(B * T, 4)
+        adj = self._batched_adjacency(B)
+        for conv in self.convs:
+            x = torch.relu(conv(x, adj))
+        return self.head(x.view(B, T, -1).amax(1))
+
+
+# --------------------------------------------------------------------------
+# factory
+# --------------------------------------------------------------------------
+def build_model(
+    cfg: PerceptionModelConfig | str,
+    overrides: PerceptionModelConfig | None = None,
+    *,
+    rest_positions: Tensor | None = None,
+    cnn_layout: Tensor | None = None,
+) -> PerceptionModel:
+    """Build a perception model.
+
+    ``build_model(cfg)`` uses ``cfg.name``; ``build_model("gcn", cfg)`` takes
+    the name from the first argument and everything else from ``cfg``;
+    ``build_model("mlp")`` uses defaults. The GCN needs the taxel
+    ``rest_positions (T, 3)``; the CNN accepts an optional ``cnn_layout``
+    ``(T, 2)`` of (row, col) pixels.
+    """
+    if isinstance(cfg, str):
+        base = overrides if overrides is not None else PerceptionModelConfig()
+        cfg = dataclasses.replace(base, name=cfg)
+    c = cfg
+    if c.name == "tacgnn":
+        return TacGNN(c.out_dim, c.num_taxels, c.channels, c.k, c.sample_ratio, c.downsample_layers,
+                      c.use_force, c.self_loop, c.fps_start)
+    if c.name == "mlp":
+        return TactileMLP(c.out_dim, c.num_taxels, c.mlp_hidden)
+    if c.name == "cnn":
+        return TactileCNN(c.out_dim, c.num_taxels, c.image_size, cnn_layout)
+    if c.name == "gcn":
+        if rest_positions is None:
+            raise ValueError("rest_positions (T, 3) is required for the gcn model")
+        if tuple(rest_positions.shape) != (c.num_taxels, 3):
+            raise ValueError(f"rest_positions must be ({c.num_taxels}, 3), got {tuple(rest_positions.shape)}")
+        return TactileGCN(rest_positions, c.out_dim, c.gcn_k, c.gcn_channels)
+    raise ValueError(f"name must be one of {MODEL_NAMES}, got {c.name!r}")  # unreachable after validation

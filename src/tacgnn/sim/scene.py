@@ -1,0 +1,85 @@
+"""Assemble a simulation scene: the hand, its skin sensors, objects, lights and camera."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from tacgnn.config import check
+from tacgnn.hand.allegro import OBJECT_CONAFFINITY, OBJECT_CONTYPE, HandConfig, add_hand
+from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.sim.tactile import add_skin_sensors
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Physics settings shared by every scene."""
+
+    timestep: float = 0.005
+    """Physics step (s); the 50 Hz control step is split into control_dt / timestep substeps."""
+    integrator: str = "implicitfast"
+    contacts_per_patch: int = 4
+    """How many contacts (strongest first) each skin patch's sensor reports."""
+    nthread: int = 2
+    """Threads stepping the batch of envs (0: all cores)."""
+
+    def __post_init__(self) -> None:
+        check(0 < self.timestep <= 0.02, "sim.timestep", f"must be in (0, 0.02], got {self.timestep}")
+        check(self.integrator in ("euler", "implicitfast", "implicit", "rk4"), "sim.integrator",
+              f"unknown integrator {self.integrator!r}")
+        check(1 <= self.contacts_per_patch <= 16, "sim.contacts_per_patch", "must be in 1..16")
+        check(self.nthread >= 0, "sim.nthread", "must be >= 0")
+
+
+_INTEGRATORS = {
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+}
+
+
+def hand_scene(hand: HandConfig, sim: SimConfig) -> mujoco.MjSpec:
+    """A spec with the hand, lights, a camera and a visual-only floor; add objects next."""
+    spec = mujoco.MjSpec()
+    spec.modelname = "tacgnn_hand"
+    spec.compiler.degree = False  # all angles in this package are radians
+    spec.option.timestep = sim.timestep
+    spec.option.integrator = _INTEGRATORS[sim.integrator]
+    # A diverging env must show as NaN that we detect and report, not be reset silently.
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
+    spec.visual.global_.offwidth = 640
+    spec.visual.global_.offheight = 480
+    world = spec.worldbody
+    world.add_light(pos=[0, -0.3, 0.6], dir=[0, 0.4, -1], diffuse=[0.8, 0.8, 0.8])
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.5, 0.5, 0.01],
+                   pos=[0, 0, -0.25], rgba=[0.35, 0.4, 0.45, 1], contype=0, conaffinity=0)
+    world.add_camera(name="overview", pos=[0.0, -0.28, 0.30], xyaxes=[1, 0, 0, 0, 0.7, 0.7])
+    add_hand(spec, hand)
+    return spec
+
+
+def add_sphere(spec: mujoco.MjSpec, name: str, radius: float, mass: float, pos, friction: float,
+               rgba=(0.85, 0.3, 0.2, 1.0)) -> None:
+    """A free sphere that touches the hand and other objects."""
+    body = spec.worldbody.add_body(name=name, pos=list(pos))
+    body.add_freejoint(name=f"{name}_free")
+    body.add_geom(name=f"{name}_geom", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[radius, 0, 0],
+                  mass=mass, friction=[friction, 0.005, 0.0001], contype=OBJECT_CONTYPE,
+                  conaffinity=OBJECT_CONAFFINITY, rgba=list(rgba))
+
+
+def compile_with_skin(spec: mujoco.MjSpec, skin: SkinLayout, sim: SimConfig) -> mujoco.MjModel:
+    """Add the skin's contact sensors and compile."""
+    add_skin_sensors(spec, skin, sim.contacts_per_patch)
+    model = spec.compile()
+    return model
+
+
+def palm_frame(hand: HandConfig) -> np.ndarray:
+    """3x3 rotation whose columns are the palm's x (normal), y, z (along fingers) in world."""
+    mat = np.zeros(9)
+    mujoco.mju_quat2Mat(mat, hand.palm_quat())
+    return mat.reshape(3, 3)
