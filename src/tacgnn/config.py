@@ -123,12 +123,13 @@ def override(config: T, updates: Mapping[str, Any]) -> T:
     for dotted, value in updates.items():
         node = tree
         parts = dotted.split(".")
-        for part in parts[:-1]:
-            if not isinstance(node.get(part), dict):
-                raise ConfigError(f"unknown config key '{dotted}'")
-            node = node[part]
-        if parts[-1] not in node:
-            raise ConfigError(f"unknown config key '{dotted}'")
+        for i, part in enumerate(parts):
+            if part not in node or (i < len(parts) - 1 and not isinstance(node[part], dict)):
+                close = difflib.get_close_matches(part, list(node), n=1)
+                hint = f" (did you mean '{'.'.join(parts[:i] + close[:1])}'?)" if close else ""
+                raise ConfigError(f"unknown config key '{dotted}'{hint}")
+            if i < len(parts) - 1:
+                node = node[part]
         node[parts[-1]] = value
     return from_dict(type(config), tree)
 

@@ -22,7 +22,7 @@ input and its label match exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Literal
 
 import gymnasium as gym
@@ -92,7 +92,9 @@ class BaodingConfig:
     """Ball centres at reset relative to the hand origin (world frame, m)."""
     spawn_noise: float = 0.01
     """Uniform +- noise (m) on each ball's x and y at reset."""
-    initial_joint_pos: tuple[float, ...] = (0.0, 0.9, 0.9, 0.6) * 3 + (0.8, 0.2, 0.85, 0.5)
+    initial_joint_pos: tuple[float, ...] = (
+        -0.15, 0.9, 0.9, 0.6, 0.0, 0.9, 0.9, 0.6, 0.15, 0.9, 0.9, 0.6, 0.8, 0.2, 0.85, 0.5)
+    """A cupped pose: index and ring turned towards the middle so the balls cannot roll off."""
     joint_noise: float = 0.03
     """Uniform +- noise (rad) on the initial joint positions (clipped to the ranges)."""
     success_angle_deg: float = 180.0
@@ -135,8 +137,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     ``step`` returns the first observation of the next episode for envs that ended;
     their last observation is in ``info["final_obs"]`` (rows where ``info["_final_obs"]``).
     ``info`` also holds per-env arrays: ``reward_terms``, ``angle_deg``, ``success``,
-    ``fall``, ``timeout``, ``diverged``, and with the skin on ``tactile`` (N, T) and
-    ``taxel_pos`` (N, T, 3) and ``ball_pos`` (N, 2, 3), all of the step just taken.
+    ``fall``, ``timeout``, ``diverged``, ``ball_pos`` (N, 2, 3), with the skin on
+    ``tactile`` (N, T), and in the 'tactile' and 'perceived' modes ``taxel_pos``
+    (N, T, 3), all of the step just taken (before any reset).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_fps": 50}
@@ -215,10 +218,17 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return np.concatenate([proprio, obj, self.last_action[ids]], axis=1).astype(np.float32)
 
     def _skin(self, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Readings of envs `ids`, and taxel positions if the observation needs them.
+
+        Positions cost as much as readings, so other modes get them on demand from
+        `taxel_positions()` (same instant, until the next step).
+        """
         if not self.config.tactile:
             return None, None
         sim = self.sim
         readings = self.tactile.readings(sim.sensordata[ids], sim.xpos[ids], sim.xmat[ids], self._rng)
+        if self.config.obs_mode not in ("tactile", "perceived"):
+            return readings, None
         return readings, self.tactile.positions(sim.xpos[ids], sim.xmat[ids])
 
     # --- reset -------------------------------------------------------------------------
@@ -280,7 +290,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         balls = self.ball_positions()
         d_angle = self._update_angle(all_ids)
         fall = self._fallen(balls)
-        reached = self.angle >= np.deg2rad(cfg.success_angle_deg)
+        reached = self.angle >= np.deg2rad(cfg.success_angle_deg) - 1e-9  # float round-off
         success = self._success(reached, fall)
         timeout = (self.episode_steps >= cfg.max_episode_steps) & ~success & ~fall
         terms = self._reward_terms(d_angle, actions, success, fall, timeout)
@@ -298,7 +308,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             "episode_steps": self.episode_steps.copy(), "ball_pos": balls,
         }
         if tactile is not None:
-            info["tactile"], info["taxel_pos"] = tactile, taxel_pos
+            info["tactile"] = tactile
+        if taxel_pos is not None:
+            info["taxel_pos"] = taxel_pos
         obs = self._observe(all_ids, tactile, taxel_pos)
         done = np.flatnonzero(terminated | truncated)
         if len(done):
@@ -373,6 +385,37 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             "fall": w.fall * fall,
             "timeout": w.timeout * timeout,
         }
+
+
+class BaodingSingleEnv(gym.Env):
+    """One Baoding env as a plain `gymnasium.Env` (passes `gymnasium.utils.env_checker.check_env`).
+
+    For training use `BaodingEnv`: this wrapper steps a batch of one.
+    """
+
+    metadata = {"render_modes": [], "render_fps": 50}
+
+    def __init__(self, config: BaodingConfig | None = None):
+        cfg = config or BaodingConfig()
+        self.vec = BaodingEnv(replace(cfg, num_envs=1))
+        self.observation_space = self.vec.single_observation_space
+        self.action_space = self.vec.single_action_space
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        obs, info = self.vec.reset(seed=seed)
+        return _row(obs, 0), info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.vec.step(np.asarray(action)[None])
+        if terminated[0] or truncated[0]:
+            obs = info["final_obs"]
+        return _row(obs, 0), float(reward[0]), bool(terminated[0]), bool(truncated[0]), \
+            {"angle_deg": float(info["angle_deg"][0]), "success": bool(info["success"][0])}
+
+
+def _row(obs, i):
+    return {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
 
 
 def _copy_obs(obs):

@@ -158,17 +158,21 @@ class EdgeMaxConv(nn.Module):
     :math:`\phi` maps :math:`2C_{in} + 3 \to C`. A node without neighbours
     gets :math:`h_i' = 0` (the PyG convention for an empty max).
 
-    Speed-up, exact in real arithmetic: split :math:`\mathrm{Lin}_1` by input
-    block, :math:`W [h_i, h_j, x_j - x_i] + b = a_i + c_j` with
-    :math:`a_i = W_i h_i - W_x x_i + b` and :math:`c_j = W_j h_j + W_x x_j`,
-    so one per-node matmul replaces the per-edge one and edges only gather.
-    The final ReLU is applied after the max (they commute).
+    Speed-ups, exact in real arithmetic:
+
+    * split :math:`\mathrm{Lin}_1` by input block,
+      :math:`W [h_i, h_j, x_j - x_i] + b = a_i + c_j` with
+      :math:`a_i = W_i h_i - W_x x_i + b`, :math:`c_j = W_j h_j + W_x x_j`:
+      one per-node matmul, edges only gather and add;
+    * the final ReLU is applied after the max (they commute);
+    * edges are built for real nodes only (not padding), K per node, so
+      the max is a plain ``amax`` over a ``(V, K, C)`` tensor.
 
     Shapes:
-        - **input:** ``h (B, N, C_in)``, ``pos (B, N, 3)``,
-          ``neighbours (B, N, K)`` slots (invalid ones may hold any slot of
-          the same graph that is a real neighbour), ``has_neighbour (B, N)``
-        - **output:** ``(B, N, C)``
+        - **input:** ``h (B, N, C_in)``, ``pos (B, N, 3)``, ``mask (B, N)``,
+          ``neighbours (B, N, K)`` slots, where invalid slots repeat a real
+          neighbour (duplicates do not change a max), ``has_neighbour (B, N)``
+        - **output:** ``(B, N, C)``, zero on padding
     """
 
     def __init__(self, in_channels: int, out_channels: int) -> None:
@@ -181,19 +185,21 @@ class EdgeMaxConv(nn.Module):
         self.lin1.reset_parameters()
         self.lin2.reset_parameters()
 
-    def forward(self, h: Tensor, pos: Tensor, neighbours: Tensor, has_neighbour: Tensor) -> Tensor:
+    def forward(self, h: Tensor, pos: Tensor, mask: Tensor, neighbours: Tensor, has_neighbour: Tensor) -> Tensor:
         B, N, K = neighbours.shape
         C, Ci = self.out_channels, self.in_channels
         if K == 0:
             return h.new_zeros(B, N, C)
         W_i, W_j, W_x = self.lin1.weight.split([Ci, Ci, 3], dim=1)
         W = torch.cat([torch.cat([W_i, -W_x], 1), torch.cat([W_j, W_x], 1)], 0)  # (2C, Ci+3)
-        a, c = (torch.cat([h, pos], -1) @ W.t()).split(C, -1)
-        a = a + self.lin1.bias
-        flat = neighbours + (torch.arange(B, device=h.device) * N).view(B, 1, 1)
-        e = a.unsqueeze(2) + c.reshape(B * N, C)[flat]  # (B, N, K, C) = Lin1 per edge
-        e = self.lin2(torch.relu(e)).amax(2)
-        return torch.relu(e) * has_neighbour.unsqueeze(-1).to(e.dtype)
+        ac = torch.cat([h, pos], -1).reshape(B * N, Ci + 3) @ W.t()
+        node = mask.reshape(-1).nonzero().squeeze(1)  # flat slots of the V real nodes
+        flat_nbr = (neighbours + (torch.arange(B, device=h.device) * N).view(B, 1, 1)).reshape(B * N, K)
+        a = ac[node, :C] + self.lin1.bias  # (V, C)
+        e = a.unsqueeze(1) + ac[:, C:][flat_nbr[node]]  # (V, K, C): Lin1 of every edge
+        e = self.lin2(torch.relu(e)).amax(1)
+        e = torch.relu(e) * has_neighbour.reshape(-1)[node].unsqueeze(1).to(e.dtype)
+        return h.new_zeros(B * N, C).index_copy(0, node, e).view(B, N, C)
 
 
 class TacGNN(PerceptionModel):
@@ -222,7 +228,9 @@ class TacGNN(PerceptionModel):
     Implementation: everything runs on a dense padded batch ``(B, N, C)``
     with a node mask, N = most activated taxels in the batch, so there are no
     scatter ops and no Python loops over frames. Graph building and sampling
-    run without autograd (they only produce indices).
+    run without autograd (they only produce indices). By default they use
+    the fast distance/kNN path of :mod:`graph_ops` (``exact_graph=False``),
+    which can break near-ties (relative 1e-5) differently from an exact sort.
 
     Shapes:
         - **input:** ``readings (B, T)``, ``positions (B, T, 3)``
@@ -240,9 +248,11 @@ class TacGNN(PerceptionModel):
         use_force: bool = False,
         self_loop: bool = False,
         fps_start: str = "centroid",
+        exact_graph: bool = False,
     ) -> None:
         super().__init__()
         self.num_taxels, self.out_dim = num_taxels, out_dim
+        self.exact_graph = exact_graph
         self.k, self.sample_ratio = tuple(k), sample_ratio
         self.downsample_layers = frozenset(downsample_layers)
         self.use_force, self.self_loop, self.fps_start = use_force, self_loop, fps_start
@@ -293,18 +303,17 @@ class TacGNN(PerceptionModel):
         h = pos if force is None else torch.cat([pos, force.unsqueeze(-1)], -1)
         rows = torch.arange(pos.shape[0], device=pos.device).unsqueeze(1)
         for l, conv in enumerate(self.convs):
-            with torch.no_grad():
-                D = pairwise_sqdist(pos)
-                nbr, valid = dense_knn(pos, mask, self.k[l], loop=self.self_loop, sqdist=D)
-                # Invalid slots repeat the nearest neighbour: max is unchanged.
-                nbr = torch.where(valid, nbr, nbr[..., :1])
+            with torch.no_grad():  # graph structure: indices only
+                D = pairwise_sqdist(pos, mask, exact=self.exact_graph)
+                nbr, valid = dense_knn(pos, mask, self.k[l], self.self_loop, sqdist=D, exact=self.exact_graph)
+                nbr = torch.where(valid, nbr, nbr[..., :1])  # repeat the nearest: max unchanged
                 has_nbr = valid[..., 0] if nbr.shape[-1] > 0 else mask
-            h = conv(h, pos, nbr, has_nbr)
+            h = conv(h, pos, mask, nbr, has_nbr)
             if l in self.downsample_layers:
                 with torch.no_grad():
                     idx, mask = dense_fps(pos, mask, self.sample_ratio, start=self.fps_start, sqdist=D)
                 pos, h = pos[rows, idx], h[rows, idx]
-        pooled = (h * mask.unsqueeze(-1).to(h.dtype)).amax(1)
+        pooled = (h * mask.unsqueeze(-1).to(h.dtype)).amax(1)  # h >= 0: padding and empty graphs give 0
         return self.head(pooled)
 
 

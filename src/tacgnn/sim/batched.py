@@ -33,7 +33,7 @@ class BatchedSim:
     """
 
     def __init__(self, model: mujoco.MjModel, num_envs: int, nthread: int = 2,
-                 max_speed: float = 50.0):
+                 max_speed: float = 1000.0):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.model = model

@@ -100,14 +100,16 @@ class TactileModel:
         return sensordata[:, self._force_idx], sensordata[:, self._pos_idx]
 
     def positions(self, xpos: np.ndarray, xmat: np.ndarray) -> np.ndarray:
-        """World positions (N, T, 3) of all taxels."""
+        """World positions (N, T, 3) of all taxels: x_link + R_link p_local."""
         n = xpos.shape[0]
         out = np.empty((n, self.num_taxels, 3), np.float32)
         offsets = self.layout.offsets()
         for p, body in enumerate(self.body_ids):
-            rot = xmat[:, body].reshape(n, 3, 3).astype(np.float32)
+            # One small GEMM per patch for all envs: (n_p, 3) @ (3, N*3), R^T stacked by env.
+            rot_t = xmat[:, body].reshape(n, 3, 3).transpose(2, 0, 1).reshape(3, 3 * n)
             local = self.local_positions[offsets[p]:offsets[p + 1]]
-            out[:, offsets[p]:offsets[p + 1]] = local @ rot.transpose(0, 2, 1) + xpos[:, None, body]
+            world = (local @ rot_t.astype(np.float32)).reshape(-1, n, 3).transpose(1, 0, 2)
+            out[:, offsets[p]:offsets[p + 1]] = world + xpos[:, None, body]
         return out
 
     def readings(self, sensordata: np.ndarray, xpos: np.ndarray, xmat: np.ndarray,
@@ -115,21 +117,23 @@ class TactileModel:
         """Taxel readings (N, T): each contact's normal force spread over its patch."""
         n = sensordata.shape[0]
         force, point = self.contacts(sensordata)
-        env, patch, _ = np.nonzero(force > 0)
+        pressed = force > 0
+        env, patch, _ = np.nonzero(pressed)
         out = np.zeros(n * self.num_taxels, np.float32)
         if len(env):
-            f = force[force > 0].astype(np.float32)
+            f = force[pressed].astype(np.float32)
             body = self.body_ids[patch]
             rot = xmat[env, body].reshape(-1, 3, 3).astype(np.float32)
             # contact point in the link frame: R^T (c - x)
-            rel = (point[force > 0] - xpos[env, body]).astype(np.float32)
+            rel = (point[pressed] - xpos[env, body]).astype(np.float32)
             local = np.einsum("mji,mj->mi", rot, rel)
-            a = self._radius[patch] * np.cbrt(f)
-            d2 = np.sum((self._pad_local[patch] - local[:, None, :]) ** 2, axis=-1)  # (M, Tmax)
-            w = np.sqrt(np.maximum(0.0, 1.0 - d2 / (a * a)[:, None]))
-            expected = (2.0 * np.pi / 3.0) * a * a * self._inv_pitch2[patch]
+            inv_a2 = 1.0 / (self._radius[patch] * np.cbrt(f)) ** 2
+            diff = self._pad_local[patch] - local[:, None, :]  # (M, Tmax, 3)
+            d2 = np.einsum("mtk,mtk->mt", diff, diff)
+            w = np.sqrt(np.maximum(0.0, 1.0 - d2 * inv_a2[:, None]))
+            expected = (2.0 * np.pi / 3.0) * self._inv_pitch2[patch] / inv_a2
             scale = f / np.maximum(w.sum(axis=1), 0.5 * expected)
-            flat = env[:, None] * self.num_taxels + self._pad_index[patch]
+            flat = self._pad_index[patch] + (env * self.num_taxels)[:, None]
             out += np.bincount(flat.ravel(), weights=(w * scale[:, None]).ravel(),
                                minlength=out.size).astype(np.float32)
         out = out.reshape(n, self.num_taxels)

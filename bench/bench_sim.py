@@ -1,0 +1,73 @@
+"""Speed of the simulation: raw physics, the Baoding env with the skin on, the skin alone.
+
+Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200]
+Prints one table; docs/results.md quotes it. Targets (issue 2): env >= 80 % of the raw
+physics rate, >= 5,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.scripted import FingerWave
+
+
+def timed(fn, repeats: int) -> float:
+    start = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    return time.perf_counter() - start
+
+
+def bench(num_envs: int, steps: int, nthread: int) -> dict:
+    cfg = BaodingConfig(num_envs=num_envs)
+    cfg = type(cfg)(**{**cfg.__dict__, "sim": type(cfg.sim)(nthread=nthread)})
+    env = BaodingEnv(cfg)
+    obs, _ = env.reset(seed=0)
+    wave = FingerWave(env.last_action[0], num_envs, seed=0)
+    for _ in range(20):  # warm up, get contacts going
+        obs, *_ = env.step(wave(obs))
+    actions = [wave(None) for _ in range(steps)]
+
+    it = iter(actions)
+    env_time = timed(lambda: env.step(next(it)), steps)
+    contacts = (env.sim.sensordata[:, env.tactile._force_idx] > 0).sum((1, 2)).mean()
+    active = (env.tactile_readings() > 0).sum(1).mean()
+
+    # raw physics: the same batch, same substeps, nothing else
+    sim = env.sim
+    sim.ctrl[:] = env.action_to_ctrl(actions[-1])
+    raw_time = timed(lambda: sim.step(env.substeps), steps)
+
+    skin_time = timed(lambda: (env.tactile_readings(), env.taxel_positions()), steps)
+    n = num_envs * steps
+    return {
+        "envs": num_envs, "threads": nthread,
+        "raw physics steps/s": n * env.substeps / raw_time,
+        "env steps/s": n / env_time,
+        "env physics steps/s": n * env.substeps / env_time,
+        "env / raw": raw_time / env_time,
+        "skin us/env step": 1e6 * skin_time / n,
+        "contacts/env": contacts, "active taxels/env": active,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--envs", type=int, nargs="+", default=[64, 128, 256])
+    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--threads", type=int, nargs="+", default=[2])
+    args = parser.parse_args()
+    rows = [bench(n, args.steps, t) for t in args.threads for n in args.envs]
+    keys = list(rows[0])
+    print(" | ".join(keys))
+    for row in rows:
+        print(" | ".join(f"{row[k]:.1f}" if isinstance(row[k], float) else str(row[k]) for k in keys))
+
+
+if __name__ == "__main__":
+    main()

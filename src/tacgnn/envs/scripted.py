@@ -1,0 +1,43 @@
+"""Scripted controllers: they move the balls without learning, for demos and datasets.
+
+`FingerWave` curls the fingers in a travelling wave (index, middle, ring out of phase),
+which pushes the balls around the palm. Each env gets its own random phase, speed
+and amplitude, so a batch produces varied contacts. It is open loop: it reads no
+observation, only the step counter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tacgnn.envs.base import NUM_JOINTS
+
+
+class FingerWave:
+    """Open-loop travelling wave of finger flexion, around the env's initial pose.
+
+    Args:
+        initial_action: (16,) action of the initial pose (``env.last_action[0]`` after reset).
+        num_envs: batch size.
+        seed: draws each env's phase, period and amplitude.
+        period_steps: (low, high) control steps per wave cycle.
+        amplitude: (low, high) flexion amplitude, in action units.
+    """
+
+    def __init__(self, initial_action: np.ndarray, num_envs: int, seed: int = 0,
+                 period_steps: tuple[float, float] = (40.0, 80.0),
+                 amplitude: tuple[float, float] = (0.05, 0.15)):
+        rng = np.random.default_rng(seed)
+        self.base = np.asarray(initial_action, dtype=np.float64)
+        self.phase = rng.uniform(0, 2 * np.pi, (num_envs, 1))
+        self.omega = 2 * np.pi / rng.uniform(*period_steps, (num_envs, 1))
+        self.amplitude = rng.uniform(*amplitude, (num_envs, 1))
+        self.sign = rng.choice([-1.0, 1.0], (num_envs, 1))  # direction the wave travels
+        self.t = 0
+
+    def __call__(self, obs=None) -> np.ndarray:
+        finger_lag = np.repeat(np.array([0.0, 1.0, 2.0, 0.0]) * (2 * np.pi / 3), 4)  # thumb: index phase
+        flexing = np.tile([0.0, 1.0, 1.0, 0.6], 4) * (np.arange(NUM_JOINTS) < 12)
+        angle = self.omega * self.t + self.phase + self.sign * finger_lag[None, :]
+        self.t += 1
+        return np.clip(self.base + self.amplitude * flexing * np.sin(angle), -1.0, 1.0)
