@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 import types
 import typing
 from pathlib import Path
@@ -64,6 +65,7 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
     if annotation is float:
         check(isinstance(value, (int, float)) and not isinstance(value, bool), key,
               f"expected a number, got {value!r}")
+        check(math.isfinite(value), key, f"must be finite, got {value!r}")
         return float(value)
     if annotation is int:
         check(isinstance(value, int) and not isinstance(value, bool), key,

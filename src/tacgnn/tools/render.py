@@ -63,11 +63,13 @@ class SkinMap:
 
     cells: (T, 2) lower-left corner of each taxel's square, in skin vector order.
     boxes: per patch (name, x0, y0, width, height) of its grid.
-    size: (width, height) of the whole map.
+    labels: (text, x, y) of each label: the bottom centre of its text.
+    size: (width, height) of the whole map, labels included.
     """
 
     cells: np.ndarray
     boxes: tuple[tuple[str, float, float, float, float], ...]
+    labels: tuple[tuple[str, float, float], ...]
     size: tuple[float, float]
 
 
@@ -164,12 +166,24 @@ def skin_map(layout: SkinLayout) -> SkinMap:
         column(thumb)
         shift(thumb, max(palm_w, fingers_right) + _GAP, 0.0)
 
-    lo = origin.min(0)
-    origin -= lo
+    origin -= origin.min(0)
     cells = np.concatenate([origin[i] + g[0] for i, g in enumerate(grids)])
-    boxes = tuple((p.name, *origin[i], g[1], g[2]) for i, (p, g) in enumerate(zip(patches, grids)))
+    boxes = tuple((p.name, *map(float, origin[i]), g[1], g[2]) for i, (p, g) in enumerate(zip(patches, grids)))
+    # Short labels fit a narrow column: "tip" over each patch, "index" over its column.
+    labels = []
+    for group, ids in [("palm", palm), ("thumb", thumb)] + [(ids and _group(patches[ids[0]]), ids)
+                                                              for ids, _ in finger_cols]:
+        for i in ids:
+            name, x0, y0, w, h = boxes[i]
+            short = name[len(group) + 1:] if len(ids) > 1 and name.startswith(group + "_") else name
+            labels.append((short.replace("_", " "), x0 + w / 2, y0 + h + 0.3))
+        if len(ids) > 1 and group != "palm":
+            top = max(boxes[i][2] + boxes[i][4] for i in ids)
+            centre = np.mean([boxes[i][1] + boxes[i][3] / 2 for i in ids])
+            labels.append((group.upper(), float(centre), top + _GAP + 0.3))
     extent = np.max([(b[1] + b[3], b[2] + b[4]) for b in boxes], axis=0)
-    return SkinMap(cells=cells.astype(float), boxes=boxes, size=(float(extent[0]), float(extent[1]) + _GAP))
+    top = max(extent[1] + _GAP, max(y for _, _, y in labels) + _GAP)
+    return SkinMap(cells=cells.astype(float), boxes=boxes, labels=tuple(labels), size=(float(extent[0]), float(top)))
 
 
 def _draw_skin(ax, layout: SkinLayout, readings: np.ndarray, vmax: float, text_colour: str,
@@ -181,9 +195,8 @@ def _draw_skin(ax, layout: SkinLayout, readings: np.ndarray, vmax: float, text_c
                            norm=Normalize(vmin=1e-9, vmax=vmax), edgecolors="none")
     cells.set_array(_checked(readings, layout))
     ax.add_collection(cells)
-    for name, x0, y0, w, h in smap.boxes:
-        ax.text(x0 + w / 2, y0 + h + 0.25, name.replace("_", " "), ha="center", va="bottom",
-                fontsize=fontsize, color=text_colour)
+    for text, x, y in smap.labels:
+        ax.text(x, y, text, ha="center", va="bottom", fontsize=fontsize, color=text_colour)
     width, height = smap.size
     ax.set_xlim(-0.5, width + 0.5)
     ax.set_ylim(-0.5, height + 0.5)
@@ -218,15 +231,19 @@ def skin_map_image(layout: SkinLayout, readings: np.ndarray, ax=None, vmax: floa
     Idle taxels are dark grey, activated ones follow a colormap up to `vmax`. Draws
     into `ax` if given, else into a new figure; returns the figure.
     """
-    width, height = skin_map(layout).size
     if ax is None:
-        scale = 0.12  # inches per cell
-        fig = _new_figure(width * scale + 1.2, height * scale + 0.3)
-        ax = fig.add_axes((0.02, 0.02, 1 - 1.2 / (width * scale + 1.2), 0.96))
-    fig = ax.figure
+        width, height = skin_map(layout).size
+        scale, bar = 0.12, 1.0  # inches per cell, inches for the colour bar
+        fig = _new_figure(width * scale + bar + 0.2, height * scale + 0.2)
+        fig_w, fig_h = fig.get_size_inches()
+        ax = fig.add_axes((0.1 / fig_w, 0.1 / fig_h, width * scale / fig_w, height * scale / fig_h))
+        cells = _draw_skin(ax, layout, readings, vmax, "black", fontsize=6)
+        cax = fig.add_axes((1 - 0.8 * bar / fig_w, 0.3, 0.15 / fig_w, 0.4))
+        fig.colorbar(cells, cax=cax, extend="min", label="reading (N)")
+        return fig
     cells = _draw_skin(ax, layout, readings, vmax, "black", fontsize=5)
-    fig.colorbar(cells, ax=ax, shrink=0.5, extend="min", label="reading (N)")
-    return fig
+    ax.figure.colorbar(cells, ax=ax, shrink=0.5, extend="min", label="reading (N)")
+    return ax.figure
 
 
 class SkinPanel:
