@@ -77,7 +77,8 @@ def cmd_demo(args) -> int:
         env1.reset(seed=args.seed)
         wave = FingerWave(env1.last_action[0], 1, seed=args.seed)
         summary = render_episode(env1, wave, args.video, steps=args.video_steps)
-        print(f"  video: {args.video} ({summary})")
+        print(f"  video: {args.video} ({summary['frames']} frames, {summary['render_fps']:.1f} frames/s "
+              f"rendered, {summary['mean_active_taxels']:.1f} activated taxels/frame)")
     return 0
 
 
@@ -88,7 +89,8 @@ def cmd_render(args) -> int:
     env = _make_env(argparse.Namespace(**{**vars(args), "envs": 1}))
     env.reset(seed=args.seed)
     summary = render_episode(env, FingerWave(env.last_action[0], 1, seed=args.seed), args.out, steps=args.steps)
-    print(f"wrote {args.out}: {summary}")
+    print(f"wrote {args.out}: {summary['frames']} frames, final angle {summary['final_angle_deg']:.1f} deg, "
+          f"{summary['mean_active_taxels']:.1f} activated taxels/frame")
     if args.skin_picture:
         save_skin_picture(env, args.skin_picture)
         print(f"wrote {args.skin_picture}")

@@ -26,7 +26,16 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from tacgnn.perception.graph_ops import FPS_STARTS, dense_fps, dense_knn, knn_graph, pairwise_sqdist, to_dense
+from tacgnn.perception.graph_ops import (
+    FPS_STARTS,
+    dense_fps,
+    dense_knn,
+    fps_counts,
+    knn_graph,
+    pairwise_sqdist,
+    sqdist_keys_,
+    to_dense,
+)
 
 __all__ = [
     "MODEL_NAMES",
@@ -148,7 +157,7 @@ def _reset_all(module: nn.Module) -> None:
 # TacGNN
 # --------------------------------------------------------------------------
 class EdgeMaxConv(nn.Module):
-    r"""One TacGNN message-passing layer on a dense padded batch.
+    r"""One TacGNN message-passing layer on a flat node list with K neighbours per node.
 
     .. math::
         h_i' = \mathrm{ReLU}\Big(\max_{j \in \mathcal{N}(i)}
@@ -163,16 +172,16 @@ class EdgeMaxConv(nn.Module):
     * split :math:`\mathrm{Lin}_1` by input block,
       :math:`W [h_i, h_j, x_j - x_i] + b = a_i + c_j` with
       :math:`a_i = W_i h_i - W_x x_i + b`, :math:`c_j = W_j h_j + W_x x_j`:
-      one per-node matmul, edges only gather and add;
+      per-node matmuls, edges only gather and add;
     * the final ReLU is applied after the max (they commute);
-    * edges are built for real nodes only (not padding), K per node, so
-      the max is a plain ``amax`` over a ``(V, K, C)`` tensor.
+    * every node has exactly K neighbour slots (missing ones repeat a real
+      neighbour, which does not change a max), so the max is an ``amax``
+      over a ``(V, K, C)`` tensor: no scatter.
 
     Shapes:
-        - **input:** ``h (B, N, C_in)``, ``pos (B, N, 3)``, ``mask (B, N)``,
-          ``neighbours (B, N, K)`` slots, where invalid slots repeat a real
-          neighbour (duplicates do not change a max), ``has_neighbour (B, N)``
-        - **output:** ``(B, N, C)``, zero on padding
+        - **input:** ``h (V, C_in)``, ``pos (V, 3)``, ``neighbours (V, K)``
+          node rows, ``has_neighbour (V,)`` bool
+        - **output:** ``(V, C)``
     """
 
     def __init__(self, in_channels: int, out_channels: int) -> None:
@@ -185,21 +194,17 @@ class EdgeMaxConv(nn.Module):
         self.lin1.reset_parameters()
         self.lin2.reset_parameters()
 
-    def forward(self, h: Tensor, pos: Tensor, mask: Tensor, neighbours: Tensor, has_neighbour: Tensor) -> Tensor:
-        B, N, K = neighbours.shape
-        C, Ci = self.out_channels, self.in_channels
+    def forward(self, h: Tensor, pos: Tensor, neighbours: Tensor, has_neighbour: Tensor) -> Tensor:
+        V, K = neighbours.shape
         if K == 0:
-            return h.new_zeros(B, N, C)
-        W_i, W_j, W_x = self.lin1.weight.split([Ci, Ci, 3], dim=1)
-        W = torch.cat([torch.cat([W_i, -W_x], 1), torch.cat([W_j, W_x], 1)], 0)  # (2C, Ci+3)
-        ac = torch.cat([h, pos], -1).reshape(B * N, Ci + 3) @ W.t()
-        node = mask.reshape(-1).nonzero().squeeze(1)  # flat slots of the V real nodes
-        flat_nbr = (neighbours + (torch.arange(B, device=h.device) * N).view(B, 1, 1)).reshape(B * N, K)
-        a = ac[node, :C] + self.lin1.bias  # (V, C)
-        e = a.unsqueeze(1) + ac[:, C:][flat_nbr[node]]  # (V, K, C): Lin1 of every edge
-        e = self.lin2(torch.relu(e)).amax(1)
-        e = torch.relu(e) * has_neighbour.reshape(-1)[node].unsqueeze(1).to(e.dtype)
-        return h.new_zeros(B * N, C).index_copy(0, node, e).view(B, N, C)
+            return h.new_zeros(V, self.out_channels)
+        W_i, W_j, W_x = self.lin1.weight.split([self.in_channels, self.in_channels, 3], dim=1)
+        hx = torch.cat([h, pos], 1)
+        a = torch.addmm(self.lin1.bias, hx, torch.cat([W_i, -W_x], 1).t())  # (V, C)
+        c = hx @ torch.cat([W_j, W_x], 1).t()  # (V, C)
+        e = c.index_select(0, neighbours.reshape(-1)).view(V, K, -1)
+        e = self.lin2(e.add_(a.unsqueeze(1)).relu_()).amax(1)  # in place: fewer big allocations
+        return torch.relu(e).masked_fill(~has_neighbour.unsqueeze(1), 0.0)
 
 
 class TacGNN(PerceptionModel):
@@ -216,21 +221,26 @@ class TacGNN(PerceptionModel):
     3. if ``l`` is in ``downsample_layers``: farthest point sampling keeps
        :math:`\lceil r \cdot n \rceil` nodes (positions and features).
 
-    Readout: :math:`y = \mathrm{MLP}(\max_i h^L_i)` with MLP ``[C, C, out]``.
-    Features are ReLU outputs (:math:`\ge 0`), so padding and an empty frame
-    (the "tactile blind area") pool to 0 and give the finite output
-    :math:`\mathrm{MLP}(0)`.
+    Readout: :math:`y = \mathrm{MLP}(\max_i h^L_i)`, MLP ``[C, C, out]``.
+    Features are ReLU outputs (:math:`\ge 0`), so an empty frame (the
+    "tactile blind area") pools to 0 and gives the finite output
+    :math:`\mathrm{MLP}(0)`; a single taxel has no neighbour, also giving 0
+    unless ``self_loop``.
 
-    Permutation invariance: kNN and max are set functions; FPS starts at the
-    node farthest from the centroid (``fps_start="centroid"``), so the output
-    does not depend on taxel order (up to exact distance ties).
+    FPS start: the node farthest from the centroid (``fps_start``), later
+    levels continue the same FPS ordering (a prefix, see
+    :func:`graph_ops.dense_fps`), which equals running FPS again from that
+    node. With this start the output does not depend on the taxel order (up
+    to exact distance ties): kNN and max are set functions.
 
-    Implementation: everything runs on a dense padded batch ``(B, N, C)``
-    with a node mask, N = most activated taxels in the batch, so there are no
-    scatter ops and no Python loops over frames. Graph building and sampling
-    run without autograd (they only produce indices). By default they use
-    the fast distance/kNN path of :mod:`graph_ops` (``exact_graph=False``),
-    which can break near-ties (relative 1e-5) differently from an exact sort.
+    Implementation: node features live in a flat ``(V, C)`` list of real
+    nodes; positions also in a padded ``(B, N, 3)`` batch (N = most active
+    taxels in the batch) for the graph ops. Real nodes are a prefix of each
+    padded row, so slot ``(b, j)`` is flat row ``ptr[b] + j``. No scatter
+    ops, no loop over frames; graph building runs without autograd (indices
+    only), by default on the fast path of :mod:`graph_ops`
+    (``exact_graph=False``), which may break near-ties (relative 1e-5)
+    differently from an exact sort.
 
     Shapes:
         - **input:** ``readings (B, T)``, ``positions (B, T, 3)``
@@ -252,10 +262,10 @@ class TacGNN(PerceptionModel):
     ) -> None:
         super().__init__()
         self.num_taxels, self.out_dim = num_taxels, out_dim
-        self.exact_graph = exact_graph
         self.k, self.sample_ratio = tuple(k), sample_ratio
         self.downsample_layers = frozenset(downsample_layers)
         self.use_force, self.self_loop, self.fps_start = use_force, self_loop, fps_start
+        self.exact_graph = exact_graph
         in_ch = 4 if use_force else 3
         self.convs = nn.ModuleList(
             EdgeMaxConv(in_ch if l == 0 else channels, channels) for l in range(len(self.k))
@@ -268,13 +278,13 @@ class TacGNN(PerceptionModel):
     def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
         self._check(readings, positions)
         active = readings > 0
-        b, t = active.nonzero(as_tuple=True)  # row-major: taxel order within a frame
+        b, t = active.nonzero(as_tuple=True)  # row-major: frames in order, taxel order within
         B = readings.shape[0]
         n_max = max(1, int(active.sum(1).max())) if B > 0 else 1
         pos, mask = to_dense(positions[b, t], b, batch_size=B, max_nodes=n_max)
         if torch.isnan(pos).any():
             raise ValueError("positions of activated taxels contain NaN")
-        force = to_dense(readings[b, t], b, batch_size=B, max_nodes=n_max)[0] if self.use_force else None
+        force = readings[b, t] if self.use_force else None
         return self.forward_dense(pos, mask, force)
 
     def forward_pyg(self, data) -> Tensor:
@@ -287,34 +297,52 @@ class TacGNN(PerceptionModel):
         batch = getattr(data, "batch", None)
         B = int(data.num_graphs) if batch is not None else 1
         pos, mask = to_dense(data.pos, batch, batch_size=B)
-        if pos.shape[1] == 0:  # every graph empty: keep one padded slot
-            pos, mask = pos.new_zeros(B, 1, 3), mask.new_zeros(B, 1)
         force = None
         if self.use_force:
             if data.x is None:
                 raise ValueError("use_force=True needs data.x (force per node)")
-            force = to_dense(data.x.reshape(-1), batch, batch_size=B, max_nodes=pos.shape[1])[0]
+            force = data.x.reshape(-1)
         return self.forward_dense(pos, mask, force)
 
     def forward_dense(self, pos: Tensor, mask: Tensor, force: Tensor | None = None) -> Tensor:
-        """Core network on a padded batch: ``pos (B, N, 3)``, ``mask (B, N)``, ``force (B, N)``."""
+        """Core network: padded ``pos (B, N, 3)``, prefix ``mask (B, N)``, flat ``force (V,)``."""
+        B = pos.shape[0]
         if not bool(mask.any()):  # whole batch in the blind area: pooled feature is 0
-            return self.head(pos.new_zeros(pos.shape[0], self.head[0].in_features))
-        h = pos if force is None else torch.cat([pos, force.unsqueeze(-1)], -1)
-        rows = torch.arange(pos.shape[0], device=pos.device).unsqueeze(1)
+            return self.head(pos.new_zeros(B, self.head[0].in_features))
+        x = pos[mask]  # (V, 3) flat positions, frame by frame
+        h = x if force is None else torch.cat([x, force.reshape(-1, 1).to(x.dtype)], 1)
+        rows = torch.arange(B, device=pos.device).unsqueeze(1)
+        counts, sampled = mask.sum(1), False
         for l, conv in enumerate(self.convs):
             with torch.no_grad():  # graph structure: indices only
+                ptr = torch.cumsum(counts, 0) - counts
                 D = pairwise_sqdist(pos, mask, exact=self.exact_graph)
-                nbr, valid = dense_knn(pos, mask, self.k[l], self.self_loop, sqdist=D, exact=self.exact_graph)
-                nbr = torch.where(valid, nbr, nbr[..., :1])  # repeat the nearest: max unchanged
+                if not self.exact_graph:
+                    D = sqdist_keys_(D)
+                nbr, valid = dense_knn(pos, mask, self.k[l], self.self_loop, dist=D)
+                # missing slots repeat the nearest neighbour (max unchanged), or the
+                # node itself if it has none (its output is zeroed by has_nbr)
                 has_nbr = valid[..., 0] if nbr.shape[-1] > 0 else mask
-            h = conv(h, pos, mask, nbr, has_nbr)
+                own = torch.arange(mask.shape[1], device=pos.device).expand_as(mask)
+                nearest = torch.where(has_nbr, nbr[..., 0], own).unsqueeze(-1)
+                nbr = torch.where(valid, nbr, nearest) + ptr.view(B, 1, 1)  # flat rows
+                nbr, has_nbr = nbr[mask], has_nbr[mask]
+            h = conv(h, x, nbr, has_nbr)
             if l in self.downsample_layers:
                 with torch.no_grad():
-                    idx, mask = dense_fps(pos, mask, self.sample_ratio, start=self.fps_start, sqdist=D)
-                pos, h = pos[rows, idx], h[rows, idx]
-        pooled = (h * mask.unsqueeze(-1).to(h.dtype)).amax(1)  # h >= 0: padding and empty graphs give 0
-        return self.head(pooled)
+                    if not sampled:
+                        idx, mask = dense_fps(pos, mask, self.sample_ratio, start=self.fps_start, dist=D)
+                        pos, sampled = pos[rows, idx], True
+                    else:  # FPS of an FPS-ordered set from its first node = a prefix
+                        m = fps_counts(counts, self.sample_ratio)
+                        idx = torch.arange(int(m.max()), device=pos.device).expand(B, -1)
+                        pos, mask = pos[:, : idx.shape[1]], idx < m.unsqueeze(1)
+                    keep = (idx + ptr.unsqueeze(1))[mask]  # flat rows of the kept nodes
+                    counts = mask.sum(1)
+                h, x = h[keep], x[keep]
+        dense = h.new_zeros(B, mask.shape[1], h.shape[1])
+        dense[mask] = h  # h >= 0, so zero padding does not change the max
+        return self.head(dense.amax(1))
 
 
 # --------------------------------------------------------------------------
