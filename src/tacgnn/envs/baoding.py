@@ -148,6 +148,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                  perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None):
         cfg = config or BaodingConfig()
         self.config = cfg
+        self._obs_uses_skin = cfg.obs_mode in ("tactile", "perceived")
         spec = hand_scene(cfg.hand, cfg.sim)
         for name, offset, rgba in zip(BALLS, cfg.spawn_offsets, ((0.85, 0.3, 0.2, 1), (0.2, 0.4, 0.85, 1))):
             add_sphere(spec, name, cfg.ball_radius, cfg.ball_mass, offset, cfg.ball_friction, rgba)
@@ -227,7 +228,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             return None, None
         sim = self.sim
         readings = self.tactile.readings(sim.sensordata[ids], sim.xpos[ids], sim.xmat[ids], self._rng)
-        if self.config.obs_mode not in ("tactile", "perceived"):
+        if not self._obs_uses_skin:
             return readings, None
         return readings, self.tactile.positions(sim.xpos[ids], sim.xmat[ids])
 
@@ -317,7 +318,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             info["final_obs"], info["_final_obs"] = obs, terminated | truncated
             obs = _copy_obs(obs)
             self._reset_envs(done)
-            new_tactile, new_pos = self._skin(done)
+            new_tactile, new_pos = self._skin(done) if self._obs_uses_skin else (None, None)
             _assign_obs(obs, done, self._observe(done, new_tactile, new_pos))
         return obs, reward.astype(np.float32), terminated, truncated, info
 

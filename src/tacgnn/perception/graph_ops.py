@@ -158,8 +158,10 @@ def pairwise_sqdist(pos: Tensor, mask: Tensor | None = None, exact: bool = True)
     if mask is not None:
         sq = sq.masked_fill(~mask.unsqueeze(-1), FAR)  # padding: D = FAR + O(1) = FAR
     one = torch.ones_like(sq)
-    # [-2a, |a|^2, 1] . [b, 1, |b|^2] = |a|^2 + |b|^2 - 2 a.b
-    return torch.bmm(torch.cat([-2 * p, sq, one], -1), torch.cat([p, one, sq], -1).transpose(1, 2))
+    # [-2a, |a|^2, 1] . [b, 1, |b|^2] = |a|^2 + |b|^2 - 2 a.b  (contiguous operands: 2x faster bmm)
+    left = torch.cat([-2 * p, sq, one], -1)
+    right = torch.cat([p, one, sq], -1).transpose(1, 2).contiguous()
+    return torch.bmm(left, right)
 
 
 def _low_bits(n: int) -> int:
@@ -180,6 +182,8 @@ def sqdist_keys_(D: Tensor) -> Tensor:
 
     Truncation only reorders distances within a relative ``2**(b - 23)``
     (~1e-5 for N <= 128). Padding keys stay above the bits of ``FAR / 2``.
+    The diagonal is set to INT_MIN: in FPS, taking the minimum with the
+    chosen node's row then marks that node as chosen for free.
     """
     if D.dtype != torch.float32 or not D.is_contiguous():
         raise ValueError("sqdist_keys_ needs a contiguous float32 tensor")
@@ -187,6 +191,7 @@ def sqdist_keys_(D: Tensor) -> Tensor:
     keys = D.view(torch.int32)
     keys.bitwise_and_(_INT_MAX & ~_low_bits(N))
     keys.bitwise_or_(torch.arange(N, dtype=torch.int32, device=D.device))
+    keys.diagonal(dim1=1, dim2=2).fill_(_INT_MIN)
     return keys
 
 
@@ -200,22 +205,22 @@ def _smallest_k_keys(keys: Tensor, K: int, loop: bool) -> Tensor:
     value per row). All writes are undone before returning, so ``keys`` can
     be shared with :func:`dense_fps`.
     """
-    low = _low_bits(keys.shape[-1])
+    N = keys.shape[-1]
+    low = _low_bits(N)
     diag = keys.diagonal(dim1=1, dim2=2)
-    saved_diag = None
-    if not loop:
-        saved_diag = diag.clone()
+    if loop:  # self at distance 0: key = 0 bits | own column
+        diag.copy_(torch.arange(N, dtype=torch.int32, device=keys.device))
+    else:
         diag.fill_(_INT_MAX)
     picks = []
     for r in range(K):
         m = keys.amin(-1, keepdim=True)
         picks.append(m)
         if r + 1 < K:  # K <= N - 1 + loop, so an untouched entry remains: m < INT_MAX
-            keys.scatter_(-1, (m & low).long(), _INT_MAX)
+            keys.scatter_(-1, (m & low).long(), torch.full_like(m, _INT_MAX))
     for m in picks[:-1]:
         keys.scatter_(-1, (m & low).long(), m)
-    if saved_diag is not None:
-        diag.copy_(saved_diag)
+    diag.fill_(_INT_MIN)
     return torch.cat(picks, -1)
 
 
@@ -333,26 +338,32 @@ def dense_fps(
         empty = torch.zeros(B, 0, dtype=torch.long, device=mask.device)
         return empty, empty.bool()
     D = pairwise_sqdist(pos) if dist is None else dist
-    keyed = D.dtype == torch.int32
     D_rows = D.reshape(B * N, N)
-    offset = torch.arange(B, device=mask.device) * N  # flat row of slot 0 of each graph
-    # mind = distance to the chosen set. Padding holds the lowest value and is
-    # never chosen; a chosen node is set to the lowest value too, so that
-    # duplicate points cannot be picked twice.
-    lowest, highest = (_INT_MIN, _INT_MAX) if keyed else (-math.inf, math.inf)
-    mind = torch.full((B, N), highest, dtype=D.dtype, device=D.device)
-    mind.masked_fill_(~mask, lowest)
-    mind_flat, low = mind.view(-1), _low_bits(N)
     last = _fps_start(pos, mask, start, generator)
-    picks = [last]
-    for _ in range(M - 1):
-        flat = last + offset
-        torch.minimum(mind, D_rows.index_select(0, flat), out=mind)
-        mind_flat.index_fill_(0, flat, lowest)
-        # a key's amax carries its column; max().indices is ~2x faster than argmax
-        last = (mind.amax(1) & low).long() if keyed else mind.max(1).indices
-        picks.append(last)
-    index = torch.stack(picks, 1)
+    # mind = distance to the chosen set. Padding holds the lowest value, so it
+    # is never chosen; a chosen node gets the lowest value too, so that even
+    # duplicate points are not picked twice.
+    if D.dtype == torch.int32:  # keys: the diagonal is already INT_MIN
+        low = _low_bits(N)
+        offset = torch.arange(B, dtype=torch.int32, device=mask.device) * N  # row of slot 0
+        mind = torch.full((B, N), _INT_MAX, dtype=torch.int32, device=D.device).masked_fill_(~mask, _INT_MIN)
+        last = last.to(torch.int32)
+        picks = [last]
+        for _ in range(M - 1):
+            torch.minimum(mind, D_rows.index_select(0, last + offset), out=mind)
+            last = mind.amax(1) & low  # the max key carries its column
+            picks.append(last)
+    else:
+        offset = torch.arange(B, device=mask.device) * N
+        mind = torch.full((B, N), math.inf, dtype=D.dtype, device=D.device).masked_fill_(~mask, -math.inf)
+        picks = [last]
+        for _ in range(M - 1):
+            flat = last + offset
+            torch.minimum(mind, D_rows.index_select(0, flat), out=mind)
+            mind.view(-1).index_fill_(0, flat, -math.inf)
+            last = mind.max(1).indices  # ~2x faster than argmax
+            picks.append(last)
+    index = torch.stack(picks, 1).long()
     keep = torch.arange(M, device=mask.device) < m.unsqueeze(1)
     return index, keep
 

@@ -176,7 +176,7 @@ class EdgeMaxConv(nn.Module):
     * the final ReLU is applied after the max (they commute);
     * every node has exactly K neighbour slots (missing ones repeat a real
       neighbour, which does not change a max), so the max is an ``amax``
-      over a ``(V, K, C)`` tensor: no scatter.
+      over a ``(K, V, C)`` tensor: no scatter.
 
     Shapes:
         - **input:** ``h (V, C_in)``, ``pos (V, 3)``, ``neighbours (V, K)``
@@ -202,8 +202,10 @@ class EdgeMaxConv(nn.Module):
         hx = torch.cat([h, pos], 1)
         a = torch.addmm(self.lin1.bias, hx, torch.cat([W_i, -W_x], 1).t())  # (V, C)
         c = hx @ torch.cat([W_j, W_x], 1).t()  # (V, C)
-        e = c.index_select(0, neighbours.reshape(-1)).view(V, K, -1)
-        e = self.lin2(e.add_(a.unsqueeze(1)).relu_()).amax(1)  # in place: fewer big allocations
+        # edges laid out (K, V, C): the add broadcasts over the leading dim and
+        # the max reduces it, both fast contiguous passes; in place where safe
+        e = c.index_select(0, neighbours.t().reshape(-1)).view(K, V, -1)
+        e = self.lin2(e.add_(a).relu_()).amax(0)
         return torch.relu(e).masked_fill(~has_neighbour.unsqueeze(1), 0.0)
 
 
@@ -320,13 +322,19 @@ class TacGNN(PerceptionModel):
                 if not self.exact_graph:
                     D = sqdist_keys_(D)
                 nbr, valid = dense_knn(pos, mask, self.k[l], self.self_loop, dist=D)
-                # missing slots repeat the nearest neighbour (max unchanged), or the
-                # node itself if it has none (its output is zeroed by has_nbr)
-                has_nbr = valid[..., 0] if nbr.shape[-1] > 0 else mask
-                own = torch.arange(mask.shape[1], device=pos.device).expand_as(mask)
-                nearest = torch.where(has_nbr, nbr[..., 0], own).unsqueeze(-1)
-                nbr = torch.where(valid, nbr, nearest) + ptr.view(B, 1, 1)  # flat rows
-                nbr, has_nbr = nbr[mask], has_nbr[mask]
+                N, K = nbr.shape[1:]
+                if K > 0:
+                    # missing slots repeat the nearest neighbour (max unchanged), or
+                    # the node itself if it has none (output zeroed via has_nbr)
+                    has_nbr = valid[..., 0]
+                    own = torch.arange(N, device=pos.device).expand_as(mask)
+                    nearest = torch.where(has_nbr, nbr[..., 0], own).unsqueeze(-1)
+                    nbr = torch.where(valid, nbr, nearest) + ptr.view(B, 1, 1)  # flat rows
+                    real = mask.view(-1).nonzero().squeeze(1)  # slots of the V real nodes
+                    nbr = nbr.view(B * N, K).index_select(0, real)
+                    has_nbr = has_nbr.view(-1).index_select(0, real)
+                else:
+                    nbr, has_nbr = nbr.new_zeros(h.shape[0], 0), None
             h = conv(h, x, nbr, has_nbr)
             if l in self.downsample_layers:
                 with torch.no_grad():
