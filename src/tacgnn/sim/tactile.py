@@ -78,17 +78,11 @@ class TactileModel:
         self.local_positions = np.concatenate(local).astype(np.float32)  # (T, 3) link frames
         self.local_normals = np.concatenate(normals).astype(np.float32)
         self.patch_of_taxel = layout.patch_index()
-        offsets = layout.offsets()
-        tmax = max(p.size for p in patches)
-        # Padded per-patch tables: candidate taxels of a contact are its patch's taxels.
-        self._pad_local = np.full((len(patches), tmax, 3), 1e3, np.float32)  # far away = never pressed
-        self._pad_index = np.zeros((len(patches), tmax), np.int64)
-        for p, patch in enumerate(patches):
-            n = patch.size
-            self._pad_local[p, :n] = self.local_positions[offsets[p]:offsets[p + 1]]
-            self._pad_index[p, :n] = np.arange(offsets[p], offsets[p + 1])
-        self._radius = np.array([p.contact_radius for p in patches], np.float32)
-        self._inv_pitch2 = np.array([1.0 / p.pitch**2 for p in patches], np.float32)
+        self._slices = [slice(a, b) for a, b in zip(layout.offsets()[:-1], layout.offsets()[1:])]
+        self._local64 = np.concatenate(local)  # float64 copy for the distance GEMMs
+        self._sq_norm = np.sum(self._local64**2, axis=1)
+        self._radius = np.array([p.contact_radius for p in patches])
+        self._inv_pitch2 = np.array([1.0 / p.pitch**2 for p in patches])
         # gather indices of all slots' (normal force, position) in the sensordata row
         slot = np.arange(self.contacts_per_patch) * SLOT_SIZE
         base = self.sensor_adr[:, None] + slot[None, :]  # (P, K)
@@ -117,26 +111,29 @@ class TactileModel:
         """Taxel readings (N, T): each contact's normal force spread over its patch."""
         n = sensordata.shape[0]
         force, point = self.contacts(sensordata)
-        pressed = force > 0
-        env, patch, _ = np.nonzero(pressed)
-        out = np.zeros(n * self.num_taxels, np.float32)
-        if len(env):
-            f = force[pressed].astype(np.float32)
-            body = self.body_ids[patch]
-            rot = xmat[env, body].reshape(-1, 3, 3).astype(np.float32)
+        out = np.zeros((n, self.num_taxels), np.float32)
+        # One pass per patch: its contacts against its own taxels, with no padding.
+        for p, body in enumerate(self.body_ids):
+            env, slot = np.nonzero(force[:, p] > 0)
+            if len(env) == 0:
+                continue
+            f = force[env, p, slot]
+            rot = xmat[env, body].reshape(-1, 3, 3)
             # contact point in the link frame: R^T (c - x)
-            rel = (point[pressed] - xpos[env, body]).astype(np.float32)
-            local = np.einsum("mji,mj->mi", rot, rel)
-            inv_a2 = 1.0 / (self._radius[patch] * np.cbrt(f)) ** 2
-            diff = self._pad_local[patch] - local[:, None, :]  # (M, Tmax, 3)
-            d2 = np.einsum("mtk,mtk->mt", diff, diff)
-            w = np.sqrt(np.maximum(0.0, 1.0 - d2 * inv_a2[:, None]))
-            expected = (2.0 * np.pi / 3.0) * self._inv_pitch2[patch] / inv_a2
-            scale = f / np.maximum(w.sum(axis=1), 0.5 * expected)
-            flat = self._pad_index[patch] + (env * self.num_taxels)[:, None]
-            out += np.bincount(flat.ravel(), weights=(w * scale[:, None]).ravel(),
-                               minlength=out.size).astype(np.float32)
-        out = out.reshape(n, self.num_taxels)
+            local = np.einsum("mji,mj->mi", rot, point[env, p, slot] - xpos[env, body])
+            taxels = self._slices[p]
+            # squared distances |l_t - c|^2 = |l_t|^2 - 2 l_t.c + |c|^2, one GEMM
+            d2 = self._sq_norm[taxels] - 2.0 * local @ self._local64[taxels].T
+            d2 += np.sum(local * local, axis=1)[:, None]
+            a2 = (self._radius[p] * np.cbrt(f)) ** 2
+            w = np.sqrt(np.maximum(0.0, 1.0 - d2 / a2[:, None]))
+            expected = (2.0 * np.pi / 3.0) * a2 * self._inv_pitch2[p]
+            w *= (f / np.maximum(w.sum(axis=1), 0.5 * expected))[:, None]
+            # envs come sorted from nonzero: sum the rows of envs with several contacts here
+            first = np.flatnonzero(np.r_[True, env[1:] != env[:-1]])
+            if len(first) < len(env):
+                w = np.add.reduceat(w, first, axis=0)
+            out[env[first], taxels] += w
         out[out < self.layout.threshold] = 0.0
         if rng is not None and self.layout.noise > 0:
             active = out > 0
