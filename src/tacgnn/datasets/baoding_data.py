@@ -1,0 +1,99 @@
+"""The Baoding ball-position dataset: skin frames of balls moving in the hand, with labels.
+
+Per sample: the 653 taxel readings (N), the taxels' world positions (m), the joint
+positions and velocities, and both ball centres (m, world axes, hand origin at 0).
+Balls keep their identity: ``ball_pos[:, 0]`` is always ball 0. The two balls look the
+same to the skin, so a model cannot know which is which; training uses a
+permutation-invariant loss (`tacgnn.perception.train`), and the order stored here is
+only the simulator's.
+
+Samples come from rollouts of a controller that keeps the balls moving (the scripted
+`FingerWave` now, a trained policy later). Frames of the first `settle_steps` steps of
+an episode (balls still dropping from the spawn) and the last frame of an episode that
+ended (a ball falling away) are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from tacgnn.config import check, to_dict
+from tacgnn.datasets.store import Field, ShardedWriter
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.scripted import FingerWave
+
+
+@dataclass(frozen=True)
+class BaodingDataConfig:
+    samples: int = 25_000
+    shard_size: int = 5_000
+    num_envs: int = 64
+    seed: int = 0
+    settle_steps: int = 5
+    keep_every: int = 2
+    """Record every k-th step of each env (consecutive frames are nearly identical)."""
+    env: BaodingConfig = field(default_factory=lambda: BaodingConfig(obs_mode="tactile"))
+
+    def __post_init__(self) -> None:
+        check(self.shard_size > 0 and self.samples % self.shard_size == 0, "samples",
+              f"must be a positive multiple of shard_size ({self.shard_size})")
+        check(self.num_envs >= 1, "num_envs", "must be >= 1")
+        check(self.keep_every >= 1, "keep_every", "must be >= 1")
+        check(self.env.obs_mode == "tactile", "env.obs_mode", "the dataset records the 'tactile' observation")
+
+
+def schema(num_taxels: int) -> dict[str, Field]:
+    return {
+        "tactile": Field((num_taxels,)),
+        "taxel_pos": Field((num_taxels, 3)),
+        "joint_pos": Field((16,)),
+        "joint_vel": Field((16,)),
+        "ball_pos": Field((2, 3)),
+    }
+
+
+def metadata(cfg: BaodingDataConfig) -> dict:
+    from tacgnn import __version__
+
+    return {"kind": "baoding", "num_taxels": cfg.env.skin.num_taxels, "seed": cfg.seed,
+            "skin": to_dict(cfg.env.skin), "controller": "finger_wave", "code_version": __version__,
+            "config": to_dict(cfg)}
+
+
+def record_shard(cfg: BaodingDataConfig, index: int,
+                 controller: Callable[[BaodingEnv, int], Callable] | None = None) -> dict[str, np.ndarray]:
+    """Roll out until one shard's worth of samples is collected; deterministic in (seed, index)."""
+    seed = cfg.seed * 100_003 + index
+    env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed))
+    obs, _ = env.reset(seed=seed)
+    act = controller(env, seed) if controller else FingerWave(env.last_action[0], cfg.num_envs, seed=seed)
+    out: dict[str, list] = {k: [] for k in schema(env.tactile.num_taxels)}
+    count, step = 0, 0
+    while count < cfg.shard_size:
+        obs, _, terminated, truncated, info = env.step(act(obs))
+        step += 1
+        # joints of the recorded instant: the pre-reset observation of this step
+        joints = info["final_obs"]["proprio"] if "final_obs" in info else obs["proprio"]
+        keep = ~(terminated | truncated) & (info["episode_steps"] > cfg.settle_steps)
+        keep &= (np.arange(cfg.num_envs) + step) % cfg.keep_every == 0
+        if not keep.any():
+            continue
+        out["tactile"].append(info["tactile"][keep])
+        out["taxel_pos"].append(info["taxel_pos"][keep])
+        out["joint_pos"].append(env.joint_low + (joints[keep, :16] + 1) * 0.5 * (env.joint_high - env.joint_low))
+        out["joint_vel"].append(joints[keep, 16:32] / 0.2)
+        out["ball_pos"].append(info["ball_pos"][keep])
+        count += int(keep.sum())
+    return {k: np.concatenate(v)[:cfg.shard_size] for k, v in out.items()}
+
+
+def generate(cfg: BaodingDataConfig, root: str | Path, progress=None) -> Path:
+    """Generate (or finish generating) the dataset in folder `root`."""
+    writer = ShardedWriter(root, schema(cfg.env.skin.num_taxels), metadata(cfg),
+                           num_shards=cfg.samples // cfg.shard_size, shard_size=cfg.shard_size)
+    writer.generate_missing(lambda i: record_shard(cfg, i), progress=progress)
+    return Path(root)
