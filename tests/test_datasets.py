@@ -94,3 +94,18 @@ def test_writer_rejects_bad_shards_and_other_metadata(tmp_path):
         writer.write_shard(0, {"x": np.full((4, 3), np.nan)})
     with pytest.raises(DatasetError, match="metadata"):
         ShardedWriter(tmp_path, {"x": Field((3,))}, {"object": "cylinder"}, num_shards=2, shard_size=4)
+
+
+@pytest.mark.parametrize("obj", ["cube", "cylinder", "meat_can"])
+def test_grasp_datasets_hold_real_grasps(tmp_path, obj):
+    from tacgnn.datasets.grasp_data import GraspDataConfig
+    from tacgnn.datasets.grasp_data import generate as generate_grasps
+    from tacgnn.envs.grasp import GraspConfig
+
+    cfg = GraspDataConfig(samples=64, shard_size=64, num_envs=32, grasp=GraspConfig(object=obj))
+    generate_grasps(cfg, tmp_path / obj)
+    data = load(tmp_path / obj, expect={"object": obj})
+    assert (data["tactile"] > 0).sum(1).min() >= 3
+    rot = data["object_rot"]
+    assert np.allclose(rot @ rot.transpose(0, 2, 1), np.eye(3), atol=1e-6)
+    assert np.abs(data["object_pos"]).max() < 0.15

@@ -4,6 +4,8 @@
     tacgnn render --out ep.mp4       video of an episode (MP4 or GIF) and a skin picture
     tacgnn view                      interactive MuJoCo viewer (needs a display)
     tacgnn config                    print the default Baoding config as YAML
+    tacgnn make-dataset baoding --out data/baoding      skin frames + ball positions (HDF5 shards)
+    tacgnn make-dataset grasp --object cube --out data/cube   power grasps + object poses
 
 Every command takes ``--config FILE.yaml`` and ``--set key=value`` (dotted keys, e.g.
 ``--set task=middle sim.timestep=0.004``); unknown keys fail before anything runs.
@@ -107,6 +109,27 @@ def cmd_view(args) -> int:
     return 0
 
 
+def cmd_make_dataset(args) -> int:
+    """Generate (or resume generating) a dataset; only missing shards are made."""
+    from tqdm import tqdm
+
+    from tacgnn.datasets import baoding_data, grasp_data
+    from tacgnn.envs.grasp import GraspConfig
+
+    progress = (lambda it: tqdm(it, desc=f"shards of {args.shard_size}", unit="shard"))
+    if args.kind == "baoding":
+        env = override(_baoding_config(args), {"obs_mode": "tactile"})
+        cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size,
+                                             seed=args.seed, env=env)
+        baoding_data.generate(cfg, args.out, progress=progress)
+    else:
+        cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
+                                         grasp=GraspConfig(object=args.object))
+        grasp_data.generate(cfg, args.out, progress=progress)
+    print(f"dataset complete: {args.out} ({args.samples} samples)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tacgnn", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -131,6 +154,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--skin-picture", default="outputs/skin.png")
     add("view", cmd_view, "interactive viewer (needs a display)")
     add("config", cmd_config, "print the default config as YAML")
+    p = add("make-dataset", cmd_make_dataset, "generate a tactile dataset (resumes if interrupted)")
+    p.add_argument("kind", choices=["baoding", "grasp"])
+    p.add_argument("--out", required=True)
+    p.add_argument("--samples", type=int, default=25_000)
+    p.add_argument("--shard-size", type=int, default=5_000)
+    p.add_argument("--object", choices=["cube", "cylinder", "meat_can"], default="cube")
     return parser
 
 
