@@ -6,6 +6,8 @@
     tacgnn config                    print the default Baoding config as YAML
     tacgnn make-dataset baoding --out data/baoding      skin frames + ball positions (HDF5 shards)
     tacgnn make-dataset grasp --object cube --out data/cube   power grasps + object poses
+    tacgnn train-perception --task baoding --model tacgnn --dataset data/baoding --run runs/p1
+    tacgnn eval-perception --checkpoint runs/p1/checkpoint.pt --dataset data/baoding [--dead 0.1]
 
 Every command takes ``--config FILE.yaml`` and ``--set key=value`` (dotted keys, e.g.
 ``--set task=middle sim.timestep=0.004``); unknown keys fail before anything runs.
@@ -130,6 +132,28 @@ def cmd_make_dataset(args) -> int:
     return 0
 
 
+def cmd_train_perception(args) -> int:
+    from tacgnn.perception.train import PerceptionTrainConfig, train
+
+    cfg = PerceptionTrainConfig.for_task(args.task, args.model, epochs=args.epochs, seed=args.seed,
+                                         max_samples=args.max_samples,
+                                         model_kw={"channels": args.channels} if args.channels else {})
+    if args.set:
+        cfg = override(cfg, parse_overrides(args.set))
+    final = train(cfg, args.dataset, args.run, resume=args.resume)
+    print("final:", {k: round(v, 4) for k, v in final.items() if isinstance(v, float)})
+    return 0
+
+
+def cmd_eval_perception(args) -> int:
+    from tacgnn.perception.train import evaluate
+
+    for dead in args.dead:
+        metrics = evaluate(args.checkpoint, args.dataset, dead_fraction=dead, seed=args.seed, whole=args.whole)
+        print(f"dead taxels {dead:.0%}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tacgnn", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -160,6 +184,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=25_000)
     p.add_argument("--shard-size", type=int, default=5_000)
     p.add_argument("--object", choices=["cube", "cylinder", "meat_can"], default="cube")
+
+    p = sub.add_parser("train-perception", help="train a perception model on a dataset")
+    p.add_argument("--task", choices=["baoding", "cube", "cylinder", "meat_can"], default="baoding")
+    p.add_argument("--model", choices=["tacgnn", "mlp", "cnn", "gcn"], default="tacgnn")
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--run", required=True, help="run folder: checkpoint, history, TensorBoard")
+    p.add_argument("--epochs", type=int, default=10)
+    p.add_argument("--channels", type=int, default=0, help="TacGNN channels (16/32/64/128)")
+    p.add_argument("--max-samples", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--resume", action="store_true")
+    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="override training config keys")
+    p.set_defaults(fn=cmd_train_perception)
+
+    p = sub.add_parser("eval-perception", help="errors of a trained perception model")
+    p.add_argument("--checkpoint", required=True)
+    p.add_argument("--dataset", required=True)
+    p.add_argument("--dead", type=float, nargs="*", default=[0.0], help="fractions of dead taxels")
+    p.add_argument("--whole", action="store_true", help="use the whole dataset, not its test split")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(fn=cmd_eval_perception)
     return parser
 
 
