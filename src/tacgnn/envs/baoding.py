@@ -104,8 +104,10 @@ class BaodingConfig:
     disturbance_std: float = 0.1
     """Std (N) of the disturbing force's magnitude on each ball, middle and hard tasks."""
     hold_steps: int = 5
-    fall_height: tuple[float, float] = (0.0, 0.15)
-    """A ball has fallen when its height above the palm plane leaves this band (m) ..."""
+    fall_height: tuple[float, float] = (0.0, 0.065)
+    """A ball has fallen when its centre's height above the palm plane leaves this band (m)
+    (at rest it is 0.037): lifting a ball by more than one radius ends the episode, so a
+    policy cannot toss a ball or pass it over the other to rack up the angle."""
     fall_radius: float = 0.13
     """... or its distance from the palm centre along the palm exceeds this (m)."""
     tactile: bool = True
