@@ -78,11 +78,18 @@ class TactileModel:
         self.local_positions = np.concatenate(local).astype(np.float32)  # (T, 3) link frames
         self.local_normals = np.concatenate(normals).astype(np.float32)
         self.patch_of_taxel = layout.patch_index()
-        self._slices = [slice(a, b) for a, b in zip(layout.offsets()[:-1], layout.offsets()[1:])]
-        self._local64 = np.concatenate(local)  # float64 copy for the distance GEMMs
-        self._sq_norm = np.sum(self._local64**2, axis=1)
         self._radius = np.array([p.contact_radius for p in patches])
         self._inv_pitch2 = np.array([1.0 / p.pitch**2 for p in patches])
+        # Patches of equal size are processed together (fewer numpy calls, no padding):
+        # per group, the patch indices, their taxels' link-frame positions (G, T_g, 3),
+        # and each taxel's index in the skin vector (G, T_g).
+        offsets = layout.offsets()
+        self._groups = []
+        for size in sorted({p.size for p in patches}):
+            members = np.array([i for i, p in enumerate(patches) if p.size == size])
+            table = np.stack([np.concatenate(local)[offsets[i]:offsets[i + 1]] for i in members]).astype(np.float32)
+            index = np.stack([np.arange(offsets[i], offsets[i + 1]) for i in members])
+            self._groups.append((members, table, np.sum(table**2, axis=-1), index))
         # gather indices of all slots' (normal force, position) in the sensordata row
         slot = np.arange(self.contacts_per_patch) * SLOT_SIZE
         base = self.sensor_adr[:, None] + slot[None, :]  # (P, K)
@@ -111,29 +118,31 @@ class TactileModel:
         """Taxel readings (N, T): each contact's normal force spread over its patch."""
         n = sensordata.shape[0]
         force, point = self.contacts(sensordata)
-        out = np.zeros((n, self.num_taxels), np.float32)
-        # One pass per patch: its contacts against its own taxels, with no padding.
-        for p, body in enumerate(self.body_ids):
-            env, slot = np.nonzero(force[:, p] > 0)
+        out = np.zeros(n * self.num_taxels, np.float32)
+        for members, table, sq_norm, index in self._groups:
+            env, member, slot = np.nonzero(force[:, members] > 0)
             if len(env) == 0:
                 continue
-            f = force[env, p, slot]
+            patch = members[member]
+            body = self.body_ids[patch]
+            f = force[env, patch, slot]
             rot = xmat[env, body].reshape(-1, 3, 3)
             # contact point in the link frame: R^T (c - x)
-            local = np.einsum("mji,mj->mi", rot, point[env, p, slot] - xpos[env, body])
-            taxels = self._slices[p]
-            # squared distances |l_t - c|^2 = |l_t|^2 - 2 l_t.c + |c|^2, one GEMM
-            d2 = self._sq_norm[taxels] - 2.0 * local @ self._local64[taxels].T
-            d2 += np.sum(local * local, axis=1)[:, None]
-            a2 = (self._radius[p] * np.cbrt(f)) ** 2
-            w = np.sqrt(np.maximum(0.0, 1.0 - d2 / a2[:, None]))
-            expected = (2.0 * np.pi / 3.0) * a2 * self._inv_pitch2[p]
-            w *= (f / np.maximum(w.sum(axis=1), 0.5 * expected))[:, None]
-            # envs come sorted from nonzero: sum the rows of envs with several contacts here
-            first = np.flatnonzero(np.r_[True, env[1:] != env[:-1]])
-            if len(first) < len(env):
-                w = np.add.reduceat(w, first, axis=0)
-            out[env[first], taxels] += w
+            local = np.einsum("mji,mj->mi", rot, point[env, patch, slot] - xpos[env, body]).astype(np.float32)
+            # w = sqrt(max(0, 1 - d^2/a^2)), d^2 = |l|^2 - 2 l.c + |c|^2, computed in place
+            a2 = ((self._radius[patch] * np.cbrt(f)) ** 2).astype(np.float32)
+            w = (table[member] @ local[:, :, None])[..., 0]  # batched matmul: faster than einsum here
+            w *= 2.0
+            w -= sq_norm[member]
+            w -= np.sum(local * local, axis=1)[:, None]
+            w /= a2[:, None]
+            w += 1.0
+            np.maximum(w, 0.0, out=w)
+            np.sqrt(w, out=w)
+            expected = (2.0 * np.pi / 3.0) * a2 * self._inv_pitch2[patch]
+            w *= (f / np.maximum(w.sum(axis=1), 0.5 * expected)).astype(np.float32)[:, None]
+            np.add.at(out, (index[member] + (env * self.num_taxels)[:, None]).ravel(), w.ravel())
+        out = out.reshape(n, self.num_taxels)
         out[out < self.layout.threshold] = 0.0
         if rng is not None and self.layout.noise > 0:
             active = out > 0

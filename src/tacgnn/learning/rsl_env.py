@@ -1,0 +1,164 @@
+"""The Baoding env seen through rsl_rl's `VecEnv` contract: torch tensors in and out.
+
+rsl_rl's runner calls ``step(actions)`` and expects, for N envs:
+
+* observations: a TensorDict of groups; ours has one, ``"policy"`` (N, obs_dim) float32,
+  read by both the actor and the critic;
+* rewards (N,) float32: the env's reward times `reward_scale` (the authors use 0.01);
+* dones (N,) int64: 1 where an episode ended in this step (terminated or truncated);
+* extras: ``"time_outs"`` (N,) bool, the truncated envs, on which PPO bootstraps
+  r + gamma V(s) instead of treating the end as terminal; ``"log"``, per-episode
+  statistics of the episodes that ended in this step, which rsl_rl's logger averages
+  over every episode that ended in the iteration.
+
+BaodingEnv resets ended envs in the same step, so the observation returned for them is
+already the first one of the next episode, which is what rsl_rl wants.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import mujoco.batch
+import numpy as np
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from tacgnn.config import to_dict
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+
+# Per-env state of BaodingEnv beyond the physics, saved with a checkpoint so that a resumed
+# run continues exactly where it stopped (the resume test fails if this list falls behind).
+_ENV_BUFFERS = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action")
+
+
+class RslBaodingEnv(VecEnv):
+    """`BaodingEnv` as an rsl_rl `VecEnv` on the CPU.
+
+    Attributes:
+        env: the wrapped numpy `BaodingEnv`.
+        cfg: the env config as a plain dict (rsl_rl hands it to its log writers).
+        num_envs: N, number of parallel envs.
+        num_actions: 16, absolute joint targets in [-1, 1].
+        num_obs: obs_dim, size of the flat observation (54; 64 for 'finger_torque').
+        max_episode_length: steps after which an episode is truncated (config's max_episode_steps).
+        episode_length_buf: (N,) int64, steps taken in each env's current episode; a live
+            view of ``env.episode_steps`` (assigning to it writes into the env).
+        device: "cpu"; the env is numpy, tensors share its memory where they can.
+        reward_scale: factor applied to the env's rewards.
+        bootstrap_time_outs: whether ``extras["time_outs"]`` is reported (else every end
+            of episode is terminal for PPO, as in the authors' rl_games setup).
+    """
+
+    def __init__(self, config: BaodingConfig, reward_scale: float = 0.01, bootstrap_time_outs: bool = True,
+                 perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None):
+        if config.obs_mode == "tactile":
+            raise ValueError("obs_mode 'tactile' gives a dict of raw skin arrays, which an MLP policy cannot "
+                             "read; use 'perceived' with a perception model, or another obs_mode")
+        self.env = BaodingEnv(config, perception=perception)
+        self.cfg = to_dict(config)
+        self.num_envs = config.num_envs
+        self.num_actions = int(self.env.single_action_space.shape[0])
+        self.num_obs = int(self.env.single_observation_space.shape[0])
+        self.max_episode_length = config.max_episode_steps
+        self.device = "cpu"
+        self.reward_scale = reward_scale
+        self.bootstrap_time_outs = bootstrap_time_outs
+        obs, _ = self.env.reset(seed=config.seed)
+        self._obs = self._wrap(obs)
+        # Running sums of each reward term over the current episode, (N,) per term (env units).
+        self._episode_terms: dict[str, np.ndarray] = {}
+
+    # --- the VecEnv contract -------------------------------------------------------------
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        return torch.from_numpy(self.env.episode_steps)
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor) -> None:
+        # rsl_rl assigns a new tensor here (init_at_random_ep_len); keep the env the owner.
+        self.env.episode_steps[:] = value.detach().cpu().numpy()
+
+    def get_observations(self) -> TensorDict:
+        """The observations of the last step (or of the reset)."""
+        return self._obs
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        obs, reward, terminated, truncated, info = self.env.step(actions.detach().cpu().numpy())
+        done = terminated | truncated
+        self._obs = self._wrap(obs)
+        rewards = torch.from_numpy(reward * np.float32(self.reward_scale))
+        extras: dict[str, Any] = {"log": self._episode_log(info, done)}
+        if self.bootstrap_time_outs:
+            extras["time_outs"] = torch.from_numpy(truncated.copy())
+        return self._obs, rewards, torch.from_numpy(done.astype(np.int64)), extras
+
+    def _wrap(self, obs: np.ndarray) -> TensorDict:
+        return TensorDict({"policy": torch.from_numpy(obs)}, batch_size=[self.num_envs])
+
+    def _episode_log(self, info: dict, done: np.ndarray) -> dict[str, torch.Tensor]:
+        """Statistics of the episodes that ended in this step, one value per episode.
+
+        rsl_rl concatenates these over the steps of an iteration before averaging, so
+        each logged number is a mean over the episodes that ended in that iteration.
+        """
+        for name, value in info["reward_terms"].items():
+            self._episode_terms.setdefault(name, np.zeros(self.num_envs))
+            self._episode_terms[name] += value
+        if not done.any():
+            return {}
+        ids = np.flatnonzero(done)
+        log = {
+            "Episode/success_rate": info["success"][ids],
+            "Episode/fall_rate": info["fall"][ids],
+            "Episode/timeout_rate": info["timeout"][ids],
+            "Episode/diverged_rate": info["diverged"][ids],
+            "Episode/final_angle_deg": info["angle_deg"][ids],
+            "Episode/length": info["episode_steps"][ids],
+        }
+        for name, total in self._episode_terms.items():
+            log[f"Episode/return_{name}"] = total[ids].copy()
+            total[ids] = 0.0
+        return {key: torch.as_tensor(value, dtype=torch.float32) for key, value in log.items()}
+
+    # --- exact resume ------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Everything a resumed run needs to continue this env bit for bit (tensors, plain data).
+
+        The MuJoCo batch keeps each env's whole integration state (positions, velocities,
+        controls, applied forces, solver warm start) in one row of ``batch.state``; model
+        fields made per-env (domain randomisation) are saved too.
+        """
+        batch = self.env.sim.batch
+        fields = {}
+        for name in mujoco.batch.MODEL_FIELDS:
+            values = batch.expanded(name)
+            if values is not None:
+                fields[name] = torch.from_numpy(np.array(values))
+        return {
+            "sim_state": torch.from_numpy(batch.state.copy()),
+            "model_fields": fields,
+            "buffers": {name: torch.from_numpy(getattr(self.env, name).copy()) for name in _ENV_BUFFERS},
+            "rng": self.env._rng.bit_generator.state,  # plain dict of ints and strings
+            "obs": self._obs["policy"].clone(),
+            "episode_terms": {k: torch.from_numpy(v.copy()) for k, v in self._episode_terms.items()},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what `state_dict` saved, into an env built from the same config."""
+        batch = self.env.sim.batch
+        if tuple(state["sim_state"].shape) != batch.state.shape:
+            raise ValueError(f"saved env state has shape {tuple(state['sim_state'].shape)}, "
+                             f"this env's is {batch.state.shape} (different num_envs or model)")
+        batch.state[...] = state["sim_state"].numpy()
+        for name, values in state["model_fields"].items():
+            self.env.sim.expand(name)[...] = values.numpy()
+        for name, values in state["buffers"].items():
+            getattr(self.env, name)[...] = values.numpy()
+        self.env._rng.bit_generator.state = state["rng"]
+        self._obs = self._wrap(state["obs"].numpy().copy())
+        self._episode_terms = {k: v.numpy().copy() for k, v in state["episode_terms"].items()}
+        # Derived fields (xpos, sensors) stay stale until the next step recomputes them; the
+        # step reads none of them before it does, and calling forward() here would not be
+        # guaranteed to leave the state (warm start) untouched.

@@ -1,0 +1,232 @@
+"""PPO wiring: the rsl_rl adapter, training runs, checkpoints, exact resume, evaluation, learning."""
+
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.learning.evaluate import evaluate, wilson_interval
+from tacgnn.learning.ppo import (CheckpointError, PPOConfig, list_checkpoints, load_checkpoint, load_policy,
+                                 make_runner, seed_everything, train)
+from tacgnn.learning.rsl_env import RslBaodingEnv
+
+# Short episodes so that resets, time-outs and the episode log all happen in a few iterations.
+ENV = BaodingConfig(tactile=False, max_episode_steps=12)
+
+
+def ppo(iterations, **kw):
+    return PPOConfig(num_envs=8, max_iterations=iterations, save_interval=100, **kw)
+
+
+@pytest.fixture(scope="module")
+def run2(tmp_path_factory):
+    """A 2-iteration training run, shared by the tests that only read it."""
+    run_dir = tmp_path_factory.mktemp("run2")
+    train(ENV, ppo(2), run_dir)
+    return run_dir
+
+
+# --- (a) the adapter -------------------------------------------------------------------
+def test_adapter_shapes_rewards_and_time_outs():
+    cfg = BaodingConfig(num_envs=2, tactile=False, max_episode_steps=3)
+    env, raw = RslBaodingEnv(cfg, reward_scale=0.01), BaodingEnv(cfg)
+    raw_obs, _ = raw.reset(seed=cfg.seed)
+    obs = env.get_observations()
+    assert isinstance(env, VecEnv) and isinstance(obs, TensorDict)
+    assert obs["policy"].shape == (2, 54) and obs["policy"].dtype == torch.float32
+    assert np.array_equal(obs["policy"].numpy(), raw_obs)
+    assert env.num_actions == 16 and env.num_obs == 54 and env.max_episode_length == 3
+
+    actions = torch.from_numpy(raw.last_action.astype(np.float32))
+    for t in range(1, 4):
+        obs, rewards, dones, extras = env.step(actions)
+        raw_obs, raw_reward, terminated, truncated, _ = raw.step(actions.numpy())
+        assert rewards.shape == (2,) and rewards.dtype == torch.float32
+        assert torch.allclose(rewards, torch.from_numpy(raw_reward) * 0.01)
+        assert np.array_equal(obs["policy"].numpy(), raw_obs)  # after the same-step reset
+        assert dones.shape == (2,) and extras["time_outs"].shape == (2,)
+        assert dones.tolist() == (terminated | truncated).astype(int).tolist()
+        if t < 3:
+            assert not dones.any() and env.episode_length_buf.tolist() == [t, t]
+            assert extras["log"] == {}
+    assert extras["time_outs"].all() and dones.all()  # step 3: truncated, not terminated
+    assert env.episode_length_buf.tolist() == [0, 0]  # new episodes
+    log = extras["log"]
+    assert log["Episode/timeout_rate"].tolist() == [1, 1] and log["Episode/length"].tolist() == [3, 3]
+    assert {"Episode/success_rate", "Episode/fall_rate", "Episode/final_angle_deg",
+            "Episode/return_rotation"} <= set(log)
+
+    env.episode_length_buf = torch.tensor([2, 1])  # rsl_rl may assign it: it must reach the env
+    assert env.env.episode_steps.tolist() == [2, 1]
+
+
+def test_adapter_termination_is_done_but_not_time_out():
+    # A ball "falls" as soon as it is more than 1 mm above the palm: every env terminates at once.
+    env = RslBaodingEnv(BaodingConfig(num_envs=2, tactile=False, fall_height=(0.0, 0.001)))
+    _, _, dones, extras = env.step(torch.zeros(2, 16))
+    assert dones.tolist() == [1, 1] and not extras["time_outs"].any()
+    assert extras["log"]["Episode/fall_rate"].tolist() == [1, 1]
+
+
+def test_adapter_rejects_dict_observations():
+    with pytest.raises(ValueError, match="tactile"):
+        RslBaodingEnv(BaodingConfig(num_envs=1, obs_mode="tactile"))
+
+
+def test_ppo_config_defaults_and_rsl_rl_dict():
+    cfg = PPOConfig()
+    assert (cfg.num_envs, cfg.num_steps_per_env, cfg.num_learning_epochs) == (256, 8, 5)
+    assert cfg.actor_hidden_dims == cfg.critic_hidden_dims == (512, 256, 128) and cfg.activation == "elu"
+    assert (cfg.learning_rate, cfg.desired_kl, cfg.gamma, cfg.lam, cfg.clip_param) == (5e-3, 0.02, 0.99, 0.95, 0.2)
+    assert (cfg.reward_scale, cfg.entropy_coef, cfg.init_noise_std, cfg.max_grad_norm) == (0.01, 0.0, 1.0, 1.0)
+    d = cfg.rsl_rl_cfg()
+    assert d["obs_groups"] == {"actor": ["policy"], "critic": ["policy"]}
+    assert d["algorithm"]["schedule"] == "adaptive" and d["actor"]["obs_normalization"]
+    with pytest.raises(ValueError, match="num_mini_batches"):
+        PPOConfig(num_mini_batches=0)
+
+
+# --- (b) a training run ----------------------------------------------------------------
+def test_train_writes_config_checkpoint_and_events(run2):
+    assert (run2 / "config.yaml").is_file()
+    assert list(run2.glob("events.out.tfevents.*"))
+    assert [p.name for p in list_checkpoints(run2)] == ["model_000001.pt", "model_000002.pt"]
+    ckpt = torch.load(run2 / "model_000002.pt", weights_only=True)
+    assert ckpt["iteration"] == 2 and ckpt["format_version"] == 1
+    assert ckpt["env_config"]["obs_mode"] == "groundtruth" and ckpt["env_config"]["num_envs"] == 8
+    assert ckpt["ppo_config"]["max_iterations"] == 2
+    assert not list(run2.glob(".*.tmp"))
+
+    policy, env_cfg = load_policy(run2 / "model_000002.pt")
+    actions = policy(np.zeros((3, 54), np.float32))
+    assert actions.shape == (3, 16) and np.array_equal(actions, policy(np.zeros((3, 54), np.float32)))
+    assert env_cfg.max_episode_steps == 12
+
+
+def test_fresh_run_refuses_a_used_run_dir(run2):
+    with pytest.raises(FileExistsError, match="resume"):
+        train(ENV, ppo(4), run2)
+
+
+# --- (c) exact resume ------------------------------------------------------------------
+def test_resume_continues_bit_for_bit(run2, tmp_path):
+    straight, resumed = tmp_path / "straight", tmp_path / "resumed"
+    train(ENV, replace(ppo(4), save_interval=3), straight)  # saves after the first, every 3rd and the last
+    assert [p.name for p in list_checkpoints(straight)] == ["model_000001.pt", "model_000003.pt", "model_000004.pt"]
+    shutil.copytree(run2, resumed)
+    last = train(ENV, ppo(4), resumed, resume=True)
+    assert last.name == "model_000004.pt"
+    a, b = load_checkpoint(straight / "model_000004.pt"), load_checkpoint(last)
+    assert b["iteration"] == 4
+    for key in ("actor_state_dict", "critic_state_dict"):  # weights, std and normaliser statistics
+        for name, tensor in a[key].items():
+            assert torch.equal(tensor, b[key][name]), f"{key}.{name}"
+    opt_a, opt_b = a["optimizer_state_dict"], b["optimizer_state_dict"]
+    assert opt_a["param_groups"][0]["lr"] == opt_b["param_groups"][0]["lr"]
+    for i, state in opt_a["state"].items():
+        assert all(torch.equal(state[k], opt_b["state"][i][k]) for k in state)
+    assert torch.equal(a["env_state"]["sim_state"], b["env_state"]["sim_state"])
+
+
+# --- (d), (e) bad checkpoints ----------------------------------------------------------
+def test_resume_with_another_obs_mode_names_it(run2, tmp_path):
+    shutil.copytree(run2, tmp_path / "run")
+    with pytest.raises(ValueError, match="obs_mode"):
+        train(BaodingConfig(tactile=False, max_episode_steps=12, obs_mode="no_perception"), ppo(4),
+              tmp_path / "run", resume=True)
+
+
+def test_truncated_checkpoint_is_named(run2, tmp_path):
+    shutil.copytree(run2, tmp_path / "run")
+    path = tmp_path / "run" / "model_000002.pt"
+    path.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(CheckpointError, match="model_000002.pt"):
+        load_checkpoint(path)
+    with pytest.raises(CheckpointError, match="model_000002.pt"):
+        train(ENV, ppo(4), tmp_path / "run", resume=True)
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="junk.pt"):
+        load_checkpoint(tmp_path / "junk.pt")
+
+
+def test_failed_save_leaves_no_partial_file(run2, tmp_path, monkeypatch):
+    shutil.copytree(run2, tmp_path / "run")
+
+    def broken_save(obj, fh, *args, **kw):
+        fh.write(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", broken_save)
+    with pytest.raises(OSError, match="disk full"):
+        train(ENV, ppo(3), tmp_path / "run", resume=True)
+    assert [p.name for p in list_checkpoints(tmp_path / "run")] == ["model_000001.pt", "model_000002.pt"]
+    assert not list((tmp_path / "run").glob(".*.tmp"))
+
+
+# --- evaluation ------------------------------------------------------------------------
+def test_evaluate_counts_quota_per_env(run2):
+    out = evaluate(run2 / "model_000002.pt", task="simple", episodes=5, num_envs=2, seed=1)
+    assert out["episodes"] == 5 and 0.0 <= out["success_rate"] <= 1.0
+    lo, hi = out["ci95"]
+    assert 0.0 <= lo <= out["success_rate"] <= hi <= 1.0
+    assert 0.0 <= out["fall_rate"] <= 1.0
+
+
+def test_wilson_interval():
+    lo, hi = wilson_interval(45, 50)  # p = 0.9
+    assert lo == pytest.approx(0.7864, abs=1e-3) and hi == pytest.approx(0.9565, abs=1e-3)
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+
+
+# --- (f) PPO learns --------------------------------------------------------------------
+class Reach1D(VecEnv):
+    """x <- x + 0.1 clip(a, -1, 1), reward -|x - g|, 20-step episodes, obs (x, g); x, g ~ U(-1, 1)."""
+
+    def __init__(self, n: int, seed: int):
+        self.num_envs, self.num_actions, self.max_episode_length = n, 1, 20
+        self.device, self.cfg = "cpu", {}
+        self.gen = torch.Generator().manual_seed(seed)
+        self.x, self.g = torch.zeros(n), torch.zeros(n)
+        self.episode_length_buf = torch.zeros(n, dtype=torch.long)
+        self._reset(torch.ones(n, dtype=torch.bool))
+
+    def _reset(self, ids):
+        self.x[ids] = torch.rand(int(ids.sum()), generator=self.gen) * 2 - 1
+        self.g[ids] = torch.rand(int(ids.sum()), generator=self.gen) * 2 - 1
+        self.episode_length_buf[ids] = 0
+
+    def get_observations(self):
+        return TensorDict({"policy": torch.stack([self.x, self.g], 1)}, batch_size=[self.num_envs])
+
+    def step(self, actions):
+        self.x = self.x + 0.1 * actions[:, 0].clamp(-1, 1)
+        self.episode_length_buf += 1
+        reward = -(self.x - self.g).abs()
+        time_out = self.episode_length_buf >= self.max_episode_length
+        self._reset(time_out)
+        return self.get_observations(), reward, time_out.long(), {"time_outs": time_out}
+
+
+def mean_reward(policy) -> float:
+    env, total = Reach1D(256, seed=123), 0.0
+    with torch.inference_mode():
+        for _ in range(env.max_episode_length):
+            _, reward, _, _ = env.step(policy(env.get_observations()))
+            total += reward.mean().item()
+    return total / env.max_episode_length
+
+
+def test_ppo_learns_to_reach():
+    seed_everything(0)
+    cfg = PPOConfig(num_envs=64, num_steps_per_env=16, actor_hidden_dims=(32, 32), critic_hidden_dims=(32, 32),
+                    learning_rate=1e-3, desired_kl=0.01, init_noise_std=0.5, reward_scale=1.0)
+    runner = make_runner(Reach1D(64, seed=0), cfg)
+    before = mean_reward(runner.get_inference_policy())
+    runner.learn(40)
+    after = mean_reward(runner.get_inference_policy())
+    assert before < -0.55 and after > -0.3, (before, after)  # staying put scores about -2/3
