@@ -8,6 +8,8 @@
     tacgnn make-dataset grasp --object cube --out data/cube   power grasps + object poses
     tacgnn train-perception --task baoding --model tacgnn --dataset data/baoding --run runs/p1
     tacgnn eval-perception --checkpoint runs/p1/checkpoint.pt --dataset data/baoding [--dead 0.1]
+    tacgnn train-policy --run-dir runs/gt --env obs_mode=groundtruth --ppo max_iterations=2000 [--resume]
+    tacgnn evaluate runs/gt/model_002000.pt --task middle --episodes 500
 
 Every command takes ``--config FILE.yaml`` and ``--set key=value`` (dotted keys, e.g.
 ``--set task=middle sim.timestep=0.004``); unknown keys fail before anything runs.
@@ -154,6 +156,18 @@ def cmd_eval_perception(args) -> int:
     return 0
 
 
+def cmd_train_policy(args) -> int:
+    from tacgnn.learning import ppo
+
+    return ppo.main(args.rest)
+
+
+def cmd_evaluate(args) -> int:
+    from tacgnn.learning import evaluate
+
+    return evaluate.main(args.rest)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tacgnn", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -198,6 +212,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="override training config keys")
     p.set_defaults(fn=cmd_train_perception)
 
+    for name, fn, text in (("train-policy", cmd_train_policy, "train PPO on the Baoding env (see --help)"),
+                           ("evaluate", cmd_evaluate, "success rate of a policy on simple/middle/hard")):
+        p = sub.add_parser(name, help=text, add_help=False)
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(fn=fn)
+
     p = sub.add_parser("eval-perception", help="errors of a trained perception model")
     p.add_argument("--checkpoint", required=True)
     p.add_argument("--dataset", required=True)
@@ -210,6 +230,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
+    argv = sys.argv[1:] if argv is None else argv
+    passthrough = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate}
+    if argv and argv[0] in passthrough:  # these parse their own flags (--help included)
+        return passthrough[argv[0]](argparse.Namespace(rest=argv[1:]))
     args = build_parser().parse_args(argv)
     for name in ("video", "out", "skin_picture"):
         value = getattr(args, name, None)
