@@ -21,7 +21,7 @@ from typing import Callable, Literal
 import numpy as np
 
 from tacgnn.envs.baoding import BaodingEnv
-from tacgnn.learning.ppo import load_policy
+from tacgnn.learning.ppo import load_perception, load_policy
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -56,6 +56,8 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
     if episodes < 1 or num_envs < 1:
         raise ValueError("episodes and num_envs must be >= 1")
     policy, env_cfg = load_policy(checkpoint)
+    if perception is None and env_cfg.obs_mode == "perceived":
+        perception = load_perception(checkpoint)
     n = min(num_envs, episodes)
     env = BaodingEnv(replace(env_cfg, task=task, num_envs=n, seed=seed), perception=perception)
     obs, _ = env.reset(seed=seed)

@@ -20,10 +20,12 @@ They hold only tensors and plain Python data and are read with ``torch.load(weig
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
 import re
 import sys
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Literal
@@ -37,6 +39,7 @@ from tensordict import TensorDict
 
 from tacgnn.config import ConfigError, check, from_dict, override, parse_overrides, to_dict
 from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.rsl_env import RslBaodingEnv
 
 FORMAT_VERSION = 1
@@ -180,8 +183,11 @@ class _Runner(OnPolicyRunner):
     after the first iteration, and after the last.
     """
 
-    def __init__(self, env: RslBaodingEnv, env_cfg: BaodingConfig, ppo_cfg: PPOConfig, log_dir: Path | None):
+    def __init__(self, env: RslBaodingEnv, env_cfg: BaodingConfig, ppo_cfg: PPOConfig, log_dir: Path | None,
+                 perception: OnlinePerception | None = None):
         train_cfg = {**ppo_cfg.rsl_rl_cfg(), "save_interval": 1}
+        self.perception = perception
+        self.run_end: int | None = None  # the run's last iteration when learn() is called in chunks
         super().__init__(env, train_cfg, log_dir=None if log_dir is None else str(log_dir), device="cpu")
         self.env_cfg, self.ppo_cfg = env_cfg, ppo_cfg
         self.logger.git_status_repos = []  # else rsl_rl runs `git status`/`git diff` on the enclosing repo
@@ -192,13 +198,21 @@ class _Runner(OnPolicyRunner):
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         self._final_iteration = self.current_learning_iteration + num_learning_iterations
         super().learn(num_learning_iterations, init_at_random_ep_len)
+        # rsl_rl leaves the index of the last iteration; count completed ones, so that the
+        # next learn() (perception in the loop calls it in chunks) starts at the next index
+        self.current_learning_iteration = self._final_iteration
 
     def save(self, path: str, infos: dict | None = None) -> None:
         iteration = self.current_learning_iteration + 1
-        due = iteration == 1 or iteration % self.ppo_cfg.save_interval == 0 or iteration == self._final_iteration
+        end = self.run_end if self.run_end is not None else self._final_iteration
+        due = iteration == 1 or iteration % self.ppo_cfg.save_interval == 0 or iteration == end
         if not due or iteration == self._saved_iteration:  # rsl_rl saves the last iteration twice
             return
-        target = Path(path).parent / f"model_{iteration:06d}.pt"
+        self.write_checkpoint(Path(path).parent, iteration)
+
+    def write_checkpoint(self, run_dir: Path, iteration: int) -> None:
+        """Write model_<iteration>.pt: everything needed to continue exactly from here."""
+        target = Path(run_dir) / f"model_{iteration:06d}.pt"
         checkpoint = {
             "format_version": FORMAT_VERSION,
             "iteration": iteration,
@@ -211,6 +225,8 @@ class _Runner(OnPolicyRunner):
             "rng": {"torch": torch.get_rng_state()},
             "env_state": self.env.state_dict(),
         }
+        if self.perception is not None:
+            checkpoint["perception"] = self.perception.state_dict()
         _atomic_write(target, lambda fh: torch.save(checkpoint, fh))
         self.last_checkpoint, self._saved_iteration = target, iteration
 
@@ -220,6 +236,10 @@ class _Runner(OnPolicyRunner):
         self.current_learning_iteration = checkpoint["iteration"]
         self.env.load_state_dict(checkpoint["env_state"])
         torch.set_rng_state(checkpoint["rng"]["torch"])
+        if self.perception is not None:
+            if "perception" not in checkpoint:
+                raise CheckpointError("checkpoint has no perception state, but this run trains one")
+            self.perception.load_state_dict(checkpoint["perception"])
 
 
 def make_runner(env, ppo_cfg: PPOConfig, log_dir: Path | None = None) -> OnPolicyRunner:
@@ -238,7 +258,7 @@ def seed_everything(seed: int) -> None:
 
 # --- training --------------------------------------------------------------------------
 def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None = None,
-          resume: bool = False) -> Path | None:
+          resume: bool = False, perception_cfg: OnlinePerceptionConfig | None = None) -> Path | None:
     """Train until ``ppo_cfg.max_iterations`` iterations are done; return the last checkpoint.
 
     run_dir (default ``log_dir/experiment_name``) receives config.yaml, TensorBoard events
@@ -261,15 +281,24 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None = Non
         raise FileExistsError(f"{run_dir} already holds checkpoints ({existing[-1].name}); "
                               "resume=True to continue that run, or choose another run_dir")
 
+    if (env_cfg.obs_mode == "perceived") != (perception_cfg is not None):
+        raise ConfigError("obs_mode 'perceived' and a perception config go together "
+                          f"(obs_mode={env_cfg.obs_mode!r}, perception config {'given' if perception_cfg else 'missing'})")
     seed_everything(ppo_cfg.seed)
-    env = RslBaodingEnv(env_cfg, ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs)
+    perception = None if perception_cfg is None else OnlinePerception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed)
+    env = RslBaodingEnv(env_cfg, ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs, perception=perception)
+    if perception is not None:
+        env.on_step = perception.record
     if checkpoint is not None and checkpoint["obs_dim"] != env.num_obs:
         raise CheckpointError(f"checkpoint {existing[-1]}: obs_dim {checkpoint['obs_dim']} != this env's {env.num_obs}")
     run_dir.mkdir(parents=True, exist_ok=True)
-    text = yaml.safe_dump({"env": to_dict(env_cfg), "ppo": to_dict(ppo_cfg)}, sort_keys=False)
+    stored = {"env": to_dict(env_cfg), "ppo": to_dict(ppo_cfg)}
+    if perception_cfg is not None:
+        stored["perception"] = to_dict(perception_cfg)
+    text = yaml.safe_dump(stored, sort_keys=False)
     _atomic_write(run_dir / "config.yaml", lambda fh: fh.write(text.encode()))
 
-    runner = _Runner(env, env_cfg, ppo_cfg, run_dir)
+    runner = _Runner(env, env_cfg, ppo_cfg, run_dir, perception)
     if checkpoint is not None:
         runner.restore(checkpoint)
         runner.last_checkpoint = existing[-1]
@@ -277,11 +306,35 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None = Non
     remaining = ppo_cfg.max_iterations - runner.current_learning_iteration
     if remaining > 0:
         try:
-            runner.learn(remaining)
+            if perception is None:
+                runner.learn(remaining)
+            else:
+                _learn_with_perception(runner, perception, ppo_cfg)
         finally:
             if runner.logger.writer is not None:
                 runner.logger.writer.close()  # rsl_rl leaves a TensorBoard writer open
     return runner.last_checkpoint
+
+
+def _learn_with_perception(runner: _Runner, perception: OnlinePerception, ppo_cfg: PPOConfig) -> None:
+    """Alternate: PPO for `update_every_steps` env steps, then a perception update."""
+    chunk = max(1, math.ceil(perception.cfg.update_every_steps / ppo_cfg.num_steps_per_env))
+    runner.run_end = ppo_cfg.max_iterations
+    while runner.current_learning_iteration < ppo_cfg.max_iterations:
+        runner.learn(min(chunk, ppo_cfg.max_iterations - runner.current_learning_iteration))
+        # rsl_rl opens a new TensorBoard writer at every learn(): keep the first one
+        runner.logger.init_logging_writer = lambda: None
+        start = time.perf_counter()
+        metrics = perception.update()
+        metrics["perception/update_seconds"] = time.perf_counter() - start
+        it = runner.current_learning_iteration
+        if runner.logger.writer is not None:
+            for key, value in metrics.items():
+                runner.logger.writer.add_scalar(key, value, it)
+        if runner._saved_iteration == it and runner.last_checkpoint is not None:
+            runner.write_checkpoint(runner.last_checkpoint.parent, it)  # now with the updated perception
+        print(f"[perception] iteration {it}: " + ", ".join(f"{k.split('/')[1]} {v:.4g}" for k, v in metrics.items()),
+              flush=True)
 
 
 # --- checkpoints -----------------------------------------------------------------------
@@ -384,6 +437,18 @@ def load_policy(checkpoint_path: str | Path) -> tuple[Callable[[np.ndarray], np.
     return policy, env_cfg
 
 
+def load_perception(checkpoint_path: str | Path) -> OnlinePerception | None:
+    """The perception a 'perceived' policy was trained with (None for other observation modes)."""
+    checkpoint = load_checkpoint(checkpoint_path)
+    if "perception" not in checkpoint:
+        return None
+    state = checkpoint["perception"]
+    cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": ""})
+    perception = OnlinePerception(replace(cfg, buffer_size=cfg.batch_size), checkpoint["env_config"]["skin"])
+    perception.load_state_dict(state)
+    return perception
+
+
 # --- command line ----------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Train PPO on the Baoding env.")
@@ -391,16 +456,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint")
     parser.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="Baoding config overrides")
     parser.add_argument("--ppo", nargs="*", default=[], metavar="KEY=VALUE", help="PPOConfig overrides")
+    parser.add_argument("--perception", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="OnlinePerceptionConfig overrides (with --env obs_mode=perceived), "
+                             "e.g. model.name=tacgnn pretrained=runs/p/checkpoint.pt")
     args = parser.parse_args(argv)
     try:
-        env_cfg, ppo_cfg = BaodingConfig(), PPOConfig()
+        env_cfg, ppo_cfg, perception_cfg = BaodingConfig(), PPOConfig(), None
         stored = args.run_dir / "config.yaml" if args.run_dir else None
         if args.resume and stored is not None and stored.is_file():  # resume the run as configured
             tree = yaml.safe_load(stored.read_text())
             env_cfg, ppo_cfg = from_dict(BaodingConfig, tree["env"]), from_dict(PPOConfig, tree["ppo"])
+            if "perception" in tree:
+                perception_cfg = from_dict(OnlinePerceptionConfig, tree["perception"])
         env_cfg = override(env_cfg, parse_overrides(args.env))
         ppo_cfg = override(ppo_cfg, parse_overrides(args.ppo))
-        train(env_cfg, ppo_cfg, args.run_dir, resume=args.resume)
+        if env_cfg.obs_mode == "perceived":
+            perception_cfg = override(perception_cfg or OnlinePerceptionConfig(), parse_overrides(args.perception))
+        elif args.perception:
+            raise ConfigError("--perception needs --env obs_mode=perceived")
+        train(env_cfg, ppo_cfg, args.run_dir, resume=args.resume, perception_cfg=perception_cfg)
     except (ConfigError, CheckpointError, FileExistsError, FileNotFoundError) as err:
         print(f"tacgnn.learning.ppo: {err}", file=sys.stderr)
         return 2

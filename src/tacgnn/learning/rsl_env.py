@@ -57,6 +57,7 @@ class RslBaodingEnv(VecEnv):
             raise ValueError("obs_mode 'tactile' gives a dict of raw skin arrays, which an MLP policy cannot "
                              "read; use 'perceived' with a perception model, or another obs_mode")
         self.env = BaodingEnv(config, perception=perception)
+        self.on_step: Callable[[dict], None] | None = None
         self.cfg = to_dict(config)
         self.num_envs = config.num_envs
         self.num_actions = int(self.env.single_action_space.shape[0])
@@ -86,6 +87,8 @@ class RslBaodingEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         obs, reward, terminated, truncated, info = self.env.step(actions.detach().cpu().numpy())
+        if self.on_step is not None:  # e.g. the online perception records the skin frames
+            self.on_step(info)
         done = terminated | truncated
         self._obs = self._wrap(obs)
         rewards = torch.from_numpy(reward * np.float32(self.reward_scale))

@@ -1,0 +1,143 @@
+"""Perception trained in the loop: the policy sees the ball positions the skin predicts.
+
+The paper's two-stage workflow, as one object handed to the env and the PPO loop:
+
+    act: BaodingEnv(obs_mode='perceived', perception=p) asks p(readings, taxel_pos) for the
+         ball positions of every env at every step (no gradient reaches the policy);
+    record: p.record(info) keeps the newest `buffer_size` skin frames with their true
+         ball positions (a ring buffer);
+    learn: every `update_every_steps` env steps, p.update() trains the perception model for
+         `epochs` epochs on the buffer (Adam, MSE, permutation-invariant over the balls).
+
+The model may start from a perception checkpoint trained offline (`pretrained`, the
+"privileged route": rollouts of a ground-truth policy make its dataset) or from scratch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from tacgnn.config import check, from_dict, to_dict
+from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.perception.models import PerceptionModelConfig
+from tacgnn.perception.objectives import Objective
+from tacgnn.perception.train import load_checkpoint as load_perception_checkpoint
+from tacgnn.perception.train import make_model, rest_positions_cm
+
+
+@dataclass(frozen=True)
+class OnlinePerceptionConfig:
+    model: PerceptionModelConfig = field(default_factory=PerceptionModelConfig)
+    update_every_steps: int = 100
+    """Env steps (per env) between perception updates: 100 x 256 envs = 25,600 new frames."""
+    epochs: int = 10
+    """Passes over the buffer per update (the paper: 10)."""
+    buffer_size: int = 25_600
+    batch_size: int = 32
+    lr: float = 1e-3
+    weight_decay: float = 1e-5
+    pretrained: str = ""
+    """A perception checkpoint (from `tacgnn train-perception`) to start from; '' = from scratch."""
+    record_every: int = 1
+    """Keep every k-th step's frames (neighbouring frames are near duplicates)."""
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
+        check(self.update_every_steps >= 1, "perception.update_every_steps", "must be >= 1")
+        check(self.epochs >= 0, "perception.epochs", "must be >= 0")
+        check(self.buffer_size >= self.batch_size >= 1, "perception.buffer_size", "must be >= batch_size >= 1")
+        check(self.record_every >= 1, "perception.record_every", "must be >= 1")
+
+
+class OnlinePerception:
+    """Callable perception for `BaodingEnv(perception=...)` that learns from what it records."""
+
+    def __init__(self, cfg: OnlinePerceptionConfig, skin: dict, seed: int = 0):
+        self.cfg = cfg
+        num_taxels = from_dict(SkinLayout, skin).num_taxels
+        model_cfg = dataclasses.replace(cfg.model, num_taxels=num_taxels)
+        self._rest = rest_positions_cm(skin) if model_cfg.name == "gcn" else None
+        torch.manual_seed(seed)
+        self.model = make_model(model_cfg, self._rest)
+        if cfg.pretrained:
+            payload = load_perception_checkpoint(cfg.pretrained)
+            stored = payload["config"]["model"]
+            if stored["name"] != model_cfg.name or stored["channels"] != model_cfg.channels:
+                raise ValueError(f"{cfg.pretrained}: a {stored['name']}-{stored['channels']} model, "
+                                 f"config asks for {model_cfg.name}-{model_cfg.channels}")
+            self.model.load_state_dict(payload["model"])
+        self.optim = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.objective = Objective("baoding")
+        n = cfg.buffer_size
+        self.readings = torch.zeros(n, num_taxels)
+        self.positions = torch.zeros(n, num_taxels, 3)
+        self.labels = torch.zeros(n, 6)
+        self.size, self.head, self.steps_seen, self.updates = 0, 0, 0, 0
+        self._gen = torch.Generator().manual_seed(seed)
+
+    @torch.inference_mode()
+    def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray) -> np.ndarray:
+        """(N, 6) ball positions in metres from (N, T) readings and (N, T, 3) positions in metres."""
+        self.model.eval()
+        out = self.model(torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
+                         torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32)))
+        return out.numpy().astype(np.float64) / 100.0
+
+    def record(self, info: dict) -> None:
+        """Keep this step's frames of envs whose episode goes on (a fall's last frame is noise)."""
+        self.steps_seen += 1
+        if self.steps_seen % self.cfg.record_every:
+            return
+        keep = ~(info["fall"] | info["diverged"])
+        r = torch.from_numpy(info["tactile"][keep])
+        p = torch.from_numpy(info["taxel_pos"][keep] * 100.0)
+        y = torch.from_numpy((info["ball_pos"][keep].reshape(-1, 6) * 100.0).astype(np.float32))
+        idx = (self.head + torch.arange(len(y))) % self.cfg.buffer_size
+        self.readings[idx], self.positions[idx], self.labels[idx] = r, p.float(), y
+        self.head = int((self.head + len(y)) % self.cfg.buffer_size)
+        self.size = min(self.cfg.buffer_size, self.size + len(y))
+
+    def update(self) -> dict[str, float]:
+        """Train `epochs` epochs on the buffer; return the buffer RMSE (cm) before and after."""
+        torch.set_num_threads(self.cfg.threads)
+        n = self.size
+        if n < self.cfg.batch_size:
+            return {}
+        before = self._rmse(n)
+        self.model.train()
+        for _ in range(self.cfg.epochs):
+            order = torch.randperm(n, generator=self._gen)
+            for i in range(0, n, self.cfg.batch_size):
+                idx = order[i:i + self.cfg.batch_size]
+                loss = self.objective.loss(self.model(self.readings[idx], self.positions[idx]), self.labels[idx])
+                if not torch.isfinite(loss):
+                    raise FloatingPointError("perception loss is not finite; the update is abandoned")
+                self.optim.zero_grad(set_to_none=True)
+                loss.backward()
+                self.optim.step()
+        self.updates += 1
+        return {"perception/rmse_cm_before": before, "perception/rmse_cm_after": self._rmse(n),
+                "perception/buffer": float(n)}
+
+    @torch.inference_mode()
+    def _rmse(self, n: int) -> float:
+        self.model.eval()
+        idx = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:4096]
+        pred = self.model(self.readings[idx], self.positions[idx])
+        return self.objective.metrics(pred, self.labels[idx])["position_rmse_cm"]
+
+    def state_dict(self) -> dict:
+        """Model and optimiser (not the buffer: ~200 MB; a resumed run refills it)."""
+        return {"config": to_dict(self.cfg), "model": self.model.state_dict(),
+                "optimizer": self.optim.state_dict(), "updates": self.updates,
+                "rest_positions_cm": self._rest}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optim.load_state_dict(state["optimizer"])
+        self.updates = state["updates"]

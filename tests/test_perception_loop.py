@@ -1,0 +1,57 @@
+"""Perception in the RL loop: the policy sees predicted ball positions; the model learns online."""
+
+import numpy as np
+import pytest
+
+from tacgnn.config import ConfigError
+from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.learning.evaluate import evaluate
+from tacgnn.learning.online_perception import OnlinePerceptionConfig
+from tacgnn.learning.ppo import PPOConfig, load_checkpoint, load_perception, train
+from tacgnn.perception.models import PerceptionModelConfig
+
+
+def test_policy_trains_with_perception_in_the_loop_and_resumes(tmp_path):
+    env = BaodingConfig(obs_mode="perceived")
+    ppo = PPOConfig(num_envs=8, max_iterations=4, save_interval=2)
+    loop = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), update_every_steps=16, epochs=2,
+                                  buffer_size=256)
+    train(env, ppo, tmp_path / "run", perception_cfg=loop)
+    ckpt = load_checkpoint(tmp_path / "run" / "model_000004.pt")
+    assert ckpt["perception"]["updates"] == 2  # every 16 steps = 2 iterations of 8 steps
+    perception = load_perception(tmp_path / "run" / "model_000004.pt")
+    frames = np.zeros((3, 653), np.float32), np.zeros((3, 653, 3), np.float32)
+    assert perception(*frames).shape == (3, 6)
+    result = evaluate(tmp_path / "run" / "model_000004.pt", "simple", episodes=4, num_envs=4)
+    assert 0.0 <= result["success_rate"] <= 1.0
+    # resume to 6 iterations: one more perception update
+    train(env, PPOConfig(num_envs=8, max_iterations=6, save_interval=2), tmp_path / "run", resume=True,
+          perception_cfg=loop)
+    assert load_checkpoint(tmp_path / "run" / "model_000006.pt")["perception"]["updates"] == 3
+
+
+def test_online_perception_learns_from_recorded_frames(tmp_path):
+    from tacgnn.config import to_dict
+    from tacgnn.envs.baoding import BaodingEnv
+    from tacgnn.envs.scripted import FingerWave
+    from tacgnn.learning.online_perception import OnlinePerception
+
+    cfg = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), epochs=20, buffer_size=2048)
+    env = BaodingEnv(BaodingConfig(num_envs=32, obs_mode="perceived"))
+    perception = OnlinePerception(cfg, to_dict(env.config.skin))
+    env.perception = perception
+    obs, _ = env.reset(seed=0)
+    wave = FingerWave(env.last_action[0], 32, seed=0)
+    for _ in range(64):
+        obs, *_, info = env.step(wave())
+        perception.record(info)
+    metrics = perception.update()
+    assert metrics["perception/rmse_cm_after"] < 0.8 * metrics["perception/rmse_cm_before"]
+
+
+def test_perceived_mode_needs_a_perception_config(tmp_path):
+    with pytest.raises(ConfigError, match="perceived"):
+        train(BaodingConfig(obs_mode="perceived"), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "r")
+    with pytest.raises(ConfigError, match="perceived"):
+        train(BaodingConfig(), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "r2",
+              perception_cfg=OnlinePerceptionConfig())
