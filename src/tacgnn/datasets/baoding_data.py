@@ -36,6 +36,10 @@ class BaodingDataConfig:
     settle_steps: int = 5
     keep_every: int = 2
     """Record every k-th step of each env (consecutive frames are nearly identical)."""
+    policy_checkpoint: str = ""
+    """A ground-truth PPO checkpoint to drive the balls ('' = the scripted finger wave)."""
+    action_noise: float = 0.1
+    """Gaussian noise (action units) on the policy's actions, for more varied contacts."""
     env: BaodingConfig = field(default_factory=lambda: BaodingConfig(obs_mode="tactile"))
 
     def __post_init__(self) -> None:
@@ -60,7 +64,8 @@ def metadata(cfg: BaodingDataConfig) -> dict:
     from tacgnn import __version__
 
     return {"kind": "baoding", "num_taxels": cfg.env.skin.num_taxels, "seed": cfg.seed,
-            "skin": to_dict(cfg.env.skin), "controller": "finger_wave", "code_version": __version__,
+            "skin": to_dict(cfg.env.skin), "controller": cfg.policy_checkpoint or "finger_wave",
+            "code_version": __version__,
             "config": to_dict(cfg)}
 
 
@@ -70,7 +75,10 @@ def record_shard(cfg: BaodingDataConfig, index: int,
     seed = cfg.seed * 100_003 + index
     env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed))
     obs, _ = env.reset(seed=seed)
-    act = controller(env, seed) if controller else FingerWave(env.last_action[0], cfg.num_envs, seed=seed)
+    if controller is None:
+        controller = policy_controller(cfg) if cfg.policy_checkpoint else \
+            (lambda e, s: FingerWave(e.last_action[0], cfg.num_envs, seed=s))
+    act = controller(env, seed)
     out: dict[str, list] = {k: [] for k in schema(env.tactile.num_taxels)}
     count, step = 0, 0
     while count < cfg.shard_size:
@@ -89,6 +97,27 @@ def record_shard(cfg: BaodingDataConfig, index: int,
         out["ball_pos"].append(info["ball_pos"][keep])
         count += int(keep.sum())
     return {k: np.concatenate(v)[:cfg.shard_size] for k, v in out.items()}
+
+
+def policy_controller(cfg: BaodingDataConfig):
+    """Drive the balls with a ground-truth policy: it sees the true ball positions, plus action noise."""
+    from tacgnn.learning.ppo import load_policy
+
+    policy, policy_env = load_policy(cfg.policy_checkpoint)
+    if policy_env.obs_mode != "groundtruth":
+        raise ValueError(f"{cfg.policy_checkpoint}: a '{policy_env.obs_mode}' policy; recording needs 'groundtruth'")
+
+    def make(env: BaodingEnv, seed: int):
+        rng = np.random.default_rng(seed)
+
+        def act(obs: dict) -> np.ndarray:
+            proprio = obs["proprio"]  # joint pos (16), 0.2 x vel (16), last action (16)
+            full = np.concatenate([proprio[:, :32], env.ball_positions().reshape(-1, 6), proprio[:, 32:]], 1)
+            return np.clip(policy(full) + cfg.action_noise * rng.standard_normal((len(full), 16)), -1, 1)
+
+        return act
+
+    return make
 
 
 def generate(cfg: BaodingDataConfig, root: str | Path, progress=None) -> Path:
