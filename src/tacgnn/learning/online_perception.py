@@ -45,6 +45,8 @@ class OnlinePerceptionConfig:
     record_every: int = 1
     """Keep every k-th step's frames (neighbouring frames are near duplicates)."""
     threads: int = 1
+    match_balls: bool = True
+    """Permutation-invariant loss over the two balls (True) or balls by identity (False)."""
 
     def __post_init__(self) -> None:
         check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
@@ -72,7 +74,7 @@ class OnlinePerception:
                                  f"config asks for {model_cfg.name}-{model_cfg.channels}")
             self.model.load_state_dict(payload["model"])
         self.optim = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-        self.objective = Objective("baoding")
+        self.objective = Objective("baoding", cfg.match_balls)
         n = cfg.buffer_size
         self.readings = torch.zeros(n, num_taxels)
         self.positions = torch.zeros(n, num_taxels, 3)

@@ -1,7 +1,10 @@
 """What a perception model predicts for each task, its loss, and the reported errors.
 
-* baoding: both ball centres (6 values, cm). The balls look alike, so the loss is the
-  smaller of the two matchings (ball a -> label 0 or label 1): permutation-invariant.
+* baoding: both ball centres (6 values, cm). The balls look alike, so by default the loss
+  is the smaller of the two matchings (ball a -> label 0 or label 1): permutation-invariant.
+  With ``match_balls=False`` the balls keep their identity (ball 0 starts on the index
+  side; in a 180-degree turn each ball keeps to its own half of the circle), which is
+  what a policy trained on true positions expects.
 * cube, meat_can: centre (cm) + orientation as the first two columns of the rotation
   matrix (the continuous 6D representation; no jump anywhere). Symmetric objects have
   several rotations that look the same (cube: 4 turns about its vertical axis in the
@@ -61,10 +64,11 @@ def _rotation_from_6d(x: Tensor) -> Tensor:
 class Objective:
     """Loss and metrics of one task; `loss(pred, target)` is what training minimises."""
 
-    def __init__(self, task: TaskName):
+    def __init__(self, task: TaskName, match_balls: bool = True):
         if task not in OUT_DIM:
             raise ValueError(f"unknown task {task!r}; one of {list(OUT_DIM)}")
         self.task = task
+        self.match_balls = match_balls  # baoding: loss over the better ball matching (else by identity)
         self.out_dim = OUT_DIM[task]
         sym = SYMMETRIES.get(task)
         self._sym = None if sym is None else torch.tensor(sym, dtype=torch.float32)
@@ -79,6 +83,8 @@ class Objective:
         """Per-sample summed squared errors (position part, orientation part)."""
         if self.task == "baoding":
             straight = ((pred - target) ** 2).sum(1)
+            if not self.match_balls:
+                return straight, torch.zeros_like(straight)
             swapped = ((pred - target[:, [3, 4, 5, 0, 1, 2]]) ** 2).sum(1)
             return torch.minimum(straight, swapped), torch.zeros_like(straight)
         pos = ((pred[:, :3] - target[:, :3]) ** 2).sum(1)

@@ -42,6 +42,8 @@ class PerceptionTrainConfig:
     """Use only the first this-many samples of the dataset (0: all), for learning curves."""
     seed: int = 0
     threads: int = 2
+    match_balls: bool = True
+    """baoding: permutation-invariant loss (True) or balls by identity (False)."""
 
     def __post_init__(self) -> None:
         check(self.epochs >= 1, "epochs", "must be >= 1")
@@ -174,7 +176,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
     if cfg.model.num_taxels != num_taxels:
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, num_taxels=num_taxels))
     train_set, test_set = split(data, cfg.train_fraction, cfg.seed)
-    objective = Objective(cfg.task)
+    objective = Objective(cfg.task, cfg.match_balls)
     rest = rest_positions_cm(meta["skin"]) if cfg.model.name == "gcn" else None
 
     torch.manual_seed(cfg.seed)
@@ -250,4 +252,4 @@ def evaluate(checkpoint: str | Path, dataset: str | Path, dead_fraction: float =
         readings[:, dead] = 0.0
         test = TactileData(readings, test.positions, test.targets)
     torch.set_num_threads(cfg.threads)
-    return Objective(cfg.task).metrics(predict(model, test), test.targets)
+    return Objective(cfg.task, cfg.match_balls).metrics(predict(model, test), test.targets)
