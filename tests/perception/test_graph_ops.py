@@ -13,6 +13,8 @@ from tacgnn.perception.graph_ops import (
     fps_counts,
     from_dense,
     knn_graph,
+    pairwise_sqdist,
+    sqdist_keys_,
     to_dense,
 )
 
@@ -158,3 +160,41 @@ def test_property_knn_and_fps(sizes, k, ratio, seed):
     assert set(map(tuple, ei.t().tolist())) == naive_knn(pos, batch, k)
     idx = farthest_point_sampling(pos, batch, ratio, batch_size=B)
     assert idx.tolist() == naive_fps(pos, batch, ratio)
+
+
+# --------------------------------------------------------------------------
+# fast path: matmul distances + int32 keys (used by the model)
+# --------------------------------------------------------------------------
+@pytest.mark.parametrize("sizes", SIZES)
+@pytest.mark.parametrize("k", [1, 3, 6])
+@pytest.mark.parametrize("loop", [False, True])
+def test_fast_knn_graph_matches_naive(sizes, k, loop):
+    # far from the origin on purpose: the matmul expansion must not lose precision
+    pos, batch = random_batch(sizes, seed=10 + k)
+    pos = pos + torch.tensor([50.0, -30.0, 20.0])
+    ei = knn_graph(pos, batch, k=k, loop=loop, batch_size=len(sizes), exact=False)
+    assert set(map(tuple, ei.t().tolist())) == naive_knn(pos, batch, k, loop)
+
+
+@pytest.mark.parametrize("sizes", SIZES)
+@pytest.mark.parametrize("ratio", [0.5, 0.3, 1.0])
+def test_fast_fps_matches_naive(sizes, ratio):
+    pos, batch = random_batch(sizes, seed=20)
+    got = farthest_point_sampling(pos, batch, ratio, batch_size=len(sizes), exact=False)
+    assert got.tolist() == naive_fps(pos, batch, ratio)
+
+
+def test_sqdist_keys_order_like_distances():
+    pos, batch = random_batch([40, 9])
+    dense, mask = to_dense(pos, batch)
+    D = pairwise_sqdist(dense, mask, exact=False)
+    keys = sqdist_keys_(D.clone())
+    n = keys.shape[-1]
+    low = (1 << (n - 1).bit_length()) - 1
+    off = ~torch.eye(n, dtype=torch.bool) & mask.unsqueeze(1) & mask.unsqueeze(2)
+    cols = torch.arange(n, dtype=torch.int32).expand_as(keys)
+    assert torch.equal((keys & low)[off], cols[off])  # the column sits in the low bits
+    order_keys = keys.masked_fill(~off, 2**31 - 1).argsort(-1)[..., :5]
+    order_dist = D.masked_fill(~off, float("inf")).argsort(-1)[..., :5]
+    assert torch.equal(order_keys[mask], order_dist[mask])
+    assert (torch.diagonal(keys, dim1=1, dim2=2) == -(2**31)).all()  # "self" marker used by FPS
