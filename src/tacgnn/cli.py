@@ -124,7 +124,8 @@ def cmd_make_dataset(args) -> int:
     if args.kind == "baoding":
         env = override(_baoding_config(args), {"obs_mode": "tactile"})
         cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size,
-                                             seed=args.seed, env=env, policy_checkpoint=args.policy or "")
+                                             seed=args.seed, env=env, policy_checkpoint=args.policy or "",
+                                             settle_steps=args.settle_steps)
         baoding_data.generate(cfg, args.out, progress=progress)
     else:
         cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
@@ -199,6 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shard-size", type=int, default=5_000)
     p.add_argument("--object", choices=["cube", "cylinder", "meat_can"], default="cube")
     p.add_argument("--policy", help="baoding: a ground-truth PPO checkpoint drives the balls")
+    p.add_argument("--settle-steps", type=int, default=5,
+                   help="baoding: skip this many first steps of each episode (0 keeps the dropping balls)")
 
     p = sub.add_parser("train-perception", help="train a perception model on a dataset")
     p.add_argument("--task", choices=["baoding", "cube", "cylinder", "meat_can"], default="baoding")

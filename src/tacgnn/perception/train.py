@@ -41,7 +41,8 @@ class PerceptionTrainConfig:
     max_samples: int = 0
     """Use only the first this-many samples of the dataset (0: all), for learning curves."""
     seed: int = 0
-    threads: int = 2
+    threads: int = 1
+    """torch threads; 1 is robust when the other core is busy (2 threads stall under load)."""
     match_balls: bool = True
     """baoding: permutation-invariant loss (True) or balls by identity (False)."""
 
