@@ -55,3 +55,18 @@ def test_perceived_mode_needs_a_perception_config(tmp_path):
     with pytest.raises(ConfigError, match="perceived"):
         train(BaodingConfig(), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "r2",
               perception_cfg=OnlinePerceptionConfig())
+
+
+def test_export_policy_is_small_and_acts_like_the_checkpoint(tmp_path):
+    from tacgnn.learning.ppo import export_policy, load_policy
+
+    train(BaodingConfig(), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "gt")
+    ckpt = tmp_path / "gt" / "model_000001.pt"
+    slim = export_policy(ckpt, tmp_path / "policy.pt")
+    assert slim.stat().st_size < ckpt.stat().st_size / 2
+    obs = np.random.default_rng(0).standard_normal((5, 54)).astype(np.float32)
+    assert np.array_equal(load_policy(ckpt)[0](obs), load_policy(slim)[0](obs))
+    # a run can start from it: actor and critic weights are loaded, the std is reset
+    run = tmp_path / "ft"
+    train(BaodingConfig(), PPOConfig(num_envs=4, max_iterations=1, init_from=str(ckpt), init_noise_std=0.2), run)
+    assert load_checkpoint(run / "model_000001.pt")["iteration"] == 1

@@ -1,6 +1,6 @@
 """The `tacgnn` command line: one sub-command per user-facing job.
 
-    tacgnn demo                      run the Baoding env with a scripted controller, write a video
+    tacgnn demo                      the shipped TacGNN policy on Simple: success rate and a video
     tacgnn render --out ep.mp4       video of an episode (MP4 or GIF) and a skin picture
     tacgnn view                      interactive MuJoCo viewer (needs a display)
     tacgnn config                    print the default Baoding config as YAML
@@ -50,14 +50,55 @@ def cmd_config(args) -> int:
     return 0
 
 
+SHIPPED_POLICY = Path(__file__).parent / "assets" / "baoding_policy.pt"
+
+
 def cmd_demo(args) -> int:
-    """Roll the scripted controller out in a batch, print what happened, write a video."""
+    """Run the shipped policy (or the scripted controller) on Simple; print results; write a video."""
+    policy_file = None if args.scripted else Path(args.policy or SHIPPED_POLICY)
+    if policy_file is not None and not policy_file.is_file():
+        if args.policy:
+            raise ConfigError(f"policy file not found: {policy_file}")
+        print(f"(no shipped policy at {policy_file}: running the scripted controller)")
+        policy_file = None
+    if policy_file is None:
+        return _demo_scripted(args)
+    from dataclasses import replace
+
+    from tacgnn.envs.baoding import BaodingEnv
+    from tacgnn.learning.evaluate import evaluate
+    from tacgnn.learning.ppo import load_perception, load_policy
+
+    policy, env_cfg = load_policy(policy_file)
+    perception = load_perception(policy_file)
+    start = time.perf_counter()
+    result = evaluate(policy_file, "simple", episodes=args.episodes, num_envs=min(args.envs, args.episodes),
+                      seed=args.seed, perception=perception)
+    seconds = time.perf_counter() - start
+    seen = "perceived by the skin (TacGNN)" if perception is not None else f"from '{env_cfg.obs_mode}'"
+    print(f"Baoding, Simple task, policy {policy_file.name}: ball positions {seen}")
+    print(f"  success rate:          {100 * result['success_rate']:.1f} % of {result['episodes']} episodes "
+          f"(95 % CI {100 * result['ci95'][0]:.1f}-{100 * result['ci95'][1]:.1f})")
+    print(f"  mean steps to success: {result['mean_steps_to_success']:.1f} (control at 50 Hz)")
+    print(f"  falls:                 {100 * result['fall_rate']:.1f} %   ({seconds:.1f} s)")
+    if args.video:
+        from tacgnn.tools.render import render_episode
+
+        env = BaodingEnv(replace(env_cfg, num_envs=1, task="simple", tactile=True), perception=perception)
+        obs, _ = env.reset(seed=args.seed)
+        summary = render_episode(env, policy, args.video, steps=args.video_steps, obs=obs)
+        print(f"  video: {args.video} ({summary['frames']} frames, skin panel beside the hand, "
+              f"{summary['mean_active_taxels']:.1f} activated taxels/frame)")
+    return 0
+
+
+def _demo_scripted(args) -> int:
     from tacgnn.envs.scripted import FingerWave
 
     env = _make_env(args)
     obs, _ = env.reset(seed=args.seed)
     controller = FingerWave(env.last_action[0], env.num_envs, seed=args.seed)
-    active, angles, falls, successes, episodes = [], [], 0, 0, 0
+    active, angles, falls, episodes = [], [], 0, 0
     start = time.perf_counter()
     for _ in range(args.steps):
         obs, _, terminated, truncated, info = env.step(controller(obs))
@@ -65,15 +106,13 @@ def cmd_demo(args) -> int:
         done = terminated | truncated
         episodes += int(done.sum())
         falls += int(info["fall"].sum())
-        successes += int(info["success"].sum())
         angles.extend(np.abs(info["angle_deg"][done]))
     seconds = time.perf_counter() - start
-    steps = args.steps * env.num_envs
     print(f"Baoding, scripted finger wave, {env.num_envs} envs x {args.steps} steps "
           f"({env.substeps} physics substeps each)")
-    print(f"  env steps/s:              {steps / seconds:,.0f}")
+    print(f"  env steps/s:              {args.steps * env.num_envs / seconds:,.0f}")
     print(f"  activated taxels / step:  {np.mean(active):.1f} of {env.tactile.num_taxels}")
-    print(f"  episodes ended:           {episodes} (falls {falls}, successes {successes})")
+    print(f"  episodes ended:           {episodes} (falls {falls})")
     if angles:
         print(f"  |rotation| at episode end: mean {np.mean(angles):.1f} deg, max {np.max(angles):.1f} deg")
     if args.video:
@@ -81,10 +120,9 @@ def cmd_demo(args) -> int:
 
         env1 = _make_env(argparse.Namespace(**{**vars(args), "envs": 1}))
         env1.reset(seed=args.seed)
-        wave = FingerWave(env1.last_action[0], 1, seed=args.seed)
-        summary = render_episode(env1, wave, args.video, steps=args.video_steps)
-        print(f"  video: {args.video} ({summary['frames']} frames, {summary['render_fps']:.1f} frames/s "
-              f"rendered, {summary['mean_active_taxels']:.1f} activated taxels/frame)")
+        summary = render_episode(env1, FingerWave(env1.last_action[0], 1, seed=args.seed), args.video,
+                                 steps=args.video_steps)
+        print(f"  video: {args.video} ({summary['frames']} frames)")
     return 0
 
 
@@ -182,9 +220,12 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(fn=fn)
         return p
 
-    p = add("demo", cmd_demo, "run the Baoding env with a scripted controller")
+    p = add("demo", cmd_demo, "run the shipped Baoding policy (TacGNN perception) and write a video")
+    p.add_argument("--policy", help=f"policy or checkpoint file (default: the shipped {SHIPPED_POLICY.name})")
+    p.add_argument("--scripted", action="store_true", help="the scripted finger wave instead of a policy")
+    p.add_argument("--episodes", type=int, default=64)
     p.add_argument("--envs", type=int, default=64)
-    p.add_argument("--steps", type=int, default=200)
+    p.add_argument("--steps", type=int, default=200, help="scripted: control steps")
     p.add_argument("--video", default="outputs/demo.mp4", help="'' to skip the video")
     p.add_argument("--video-steps", type=int, default=100)
     p = add("render", cmd_render, "write a video of one episode and a skin picture")

@@ -107,6 +107,9 @@ class PPOConfig:
     """Write a checkpoint every this many iterations (and after the first and the last); ~5 MB each."""
     seed: int = 0
     """Seed of torch, numpy and Python's global RNGs; the env's own stream is the env config's seed."""
+    init_from: str = ""
+    """A checkpoint whose actor and critic (with their normalisers) start this run, e.g. a
+    ground-truth policy to fine-tune with perceived ball positions; '' = random init."""
     torch_threads: int = 1
     """CPU threads for torch; 1 leaves the other core to the physics."""
     log_dir: str = "runs"
@@ -299,6 +302,13 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None = Non
     _atomic_write(run_dir / "config.yaml", lambda fh: fh.write(text.encode()))
 
     runner = _Runner(env, env_cfg, ppo_cfg, run_dir, perception)
+    if checkpoint is None and ppo_cfg.init_from:
+        start = load_checkpoint(ppo_cfg.init_from)
+        if start["obs_dim"] != env.num_obs:
+            raise CheckpointError(f"init_from {ppo_cfg.init_from}: obs_dim {start['obs_dim']} != {env.num_obs}")
+        runner.alg.load(start, load_cfg={"actor": True, "critic": True}, strict=True)
+        _set_action_std(runner, ppo_cfg.init_noise_std)  # explore afresh around the loaded policy
+        print(f"actor and critic initialised from {ppo_cfg.init_from}")
     if checkpoint is not None:
         runner.restore(checkpoint)
         runner.last_checkpoint = existing[-1]
@@ -314,6 +324,16 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None = Non
             if runner.logger.writer is not None:
                 runner.logger.writer.close()  # rsl_rl leaves a TensorBoard writer open
     return runner.last_checkpoint
+
+
+def _set_action_std(runner: _Runner, std: float) -> None:
+    """Reset the policy's (learned, state-independent) action std to `std`."""
+    with torch.no_grad():
+        for name, param in runner.alg.actor.named_parameters():
+            if name.endswith("std_param"):
+                param.fill_(std)
+            elif name.endswith("log_std_param"):
+                param.fill_(math.log(std))
 
 
 def _learn_with_perception(runner: _Runner, perception: OnlinePerception, ppo_cfg: PPOConfig) -> None:
@@ -419,7 +439,7 @@ def load_policy(checkpoint_path: str | Path) -> tuple[Callable[[np.ndarray], np.
 
     The policy maps (N, obs_dim) observations to (N, 16) float32 actions, normaliser included.
     """
-    checkpoint = load_checkpoint(checkpoint_path)
+    checkpoint = _load_policy_file(checkpoint_path)
     env_cfg = from_dict(BaodingConfig, checkpoint["env_config"])
     ppo_cfg = from_dict(PPOConfig, checkpoint["ppo_config"])
     actor_cfg = dict(ppo_cfg.rsl_rl_cfg()["actor"])
@@ -439,14 +459,54 @@ def load_policy(checkpoint_path: str | Path) -> tuple[Callable[[np.ndarray], np.
 
 def load_perception(checkpoint_path: str | Path) -> OnlinePerception | None:
     """The perception a 'perceived' policy was trained with (None for other observation modes)."""
-    checkpoint = load_checkpoint(checkpoint_path)
+    checkpoint = _load_policy_file(checkpoint_path)
     if "perception" not in checkpoint:
         return None
     state = checkpoint["perception"]
     cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": ""})
     perception = OnlinePerception(replace(cfg, buffer_size=cfg.batch_size), checkpoint["env_config"]["skin"])
-    perception.load_state_dict(state)
+    perception.model.load_state_dict(state["model"])
+    perception.updates = state["updates"]
     return perception
+
+
+POLICY_KEYS = ("env_config", "ppo_config", "obs_dim", "num_actions", "actor_state_dict")
+
+
+def export_policy(checkpoint_path: str | Path, out: str | Path) -> Path:
+    """Write a small file with what acting needs (actor, configs, perception), not training state.
+
+    A training checkpoint holds the critic, the optimiser and the env state (~5 MB); the
+    exported policy is what the demo ships (well under 1 MB) and `load_policy` reads both.
+    """
+    checkpoint = load_checkpoint(checkpoint_path)
+    slim = {"format_version": FORMAT_VERSION, "kind": "policy", "iteration": checkpoint["iteration"],
+            **{k: checkpoint[k] for k in POLICY_KEYS}}
+    if "perception" in checkpoint:
+        perception = dict(checkpoint["perception"])
+        perception.pop("optimizer", None)
+        slim["perception"] = perception
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_write(out, lambda fh: torch.save(slim, fh))
+    return out
+
+
+def _load_policy_file(path: str | Path) -> dict[str, Any]:
+    """A training checkpoint or an exported policy (weights only either way)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"policy file not found: {path}")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:
+        raise CheckpointError(f"cannot read policy file {path} (truncated or corrupt?): {err}") from err
+    if isinstance(data, dict) and data.get("kind") == "policy":
+        missing = [k for k in POLICY_KEYS if k not in data]
+        if missing or data.get("format_version") != FORMAT_VERSION:
+            raise CheckpointError(f"{path}: exported policy of another version or lacking {missing}")
+        return data
+    return load_checkpoint(path)
 
 
 # --- command line ----------------------------------------------------------------------
