@@ -365,16 +365,21 @@ def list_checkpoints(run_dir: Path) -> list[Path]:
     return [p for _, p in sorted(found)]
 
 
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """Read and sanity-check a checkpoint (weights only: no code runs from the file)."""
+def _read_weights(path: str | Path, what: str) -> Any:
+    """torch.load with weights_only=True (no code runs from the file); clear errors."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
+        raise FileNotFoundError(f"{what} not found: {path}")
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # truncated zip, bad pickle, foreign objects...
         first_line = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise CheckpointError(f"cannot read checkpoint {path} (truncated or corrupt?): {first_line}") from err
+        raise CheckpointError(f"cannot read {what} {path} (truncated or corrupt?): {first_line}") from err
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read and sanity-check a checkpoint (weights only: no code runs from the file)."""
+    checkpoint = _read_weights(path, "checkpoint")
     if not isinstance(checkpoint, dict) or "format_version" not in checkpoint:
         raise CheckpointError(f"{path} is not a tacgnn PPO checkpoint (no format_version)")
     if checkpoint["format_version"] != FORMAT_VERSION:
@@ -494,13 +499,7 @@ def export_policy(checkpoint_path: str | Path, out: str | Path) -> Path:
 
 def _load_policy_file(path: str | Path) -> dict[str, Any]:
     """A training checkpoint or an exported policy (weights only either way)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"policy file not found: {path}")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:
-        raise CheckpointError(f"cannot read policy file {path} (truncated or corrupt?): {err}") from err
+    data = _read_weights(path, "policy file")
     if isinstance(data, dict) and data.get("kind") == "policy":
         missing = [k for k in POLICY_KEYS if k not in data]
         if missing or data.get("format_version") != FORMAT_VERSION:
