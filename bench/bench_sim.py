@@ -86,8 +86,9 @@ def main() -> None:
     rows = [bench(n, args.steps, t) for t in args.threads for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
+    fmt = {"env/physics": "{:.2f}"}
     for row in rows:
-        print(" | ".join(f"{row[k]:.1f}" if isinstance(row[k], float) else str(row[k]) for k in keys))
+        print(" | ".join(fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k]) for k in keys))
 
 
 if __name__ == "__main__":
