@@ -322,3 +322,51 @@ def test_tacgnn_in_double_precision(rest):
     readings, positions, _ = blob_frames(rest, 4, seed=14)
     y = model(readings.double(), positions.double())
     assert y.dtype == torch.float64 and torch.isfinite(y).all()
+
+
+@pytest.mark.parametrize("pool", ["last", "all", "jk", "sum"])
+@pytest.mark.parametrize("extra", [dict(), dict(use_force=True, force_feature="log", residual=True, message_layers=3)])
+def test_tacgnn_readouts_are_invariant_and_blind_safe(rest, pool, extra):
+    """Every readout keeps node-order invariance and gives finite outputs on empty/one-taxel frames."""
+    torch.manual_seed(0)
+    model = make("tacgnn", rest, pool=pool, **extra)
+    readings, positions, _ = blob_frames(rest, 6, seed=5)
+    readings[0] = 0.0
+    readings[1] = 0.0
+    readings[1, 17] = 1e-9  # a barely-pressed taxel: log force must stay finite
+    perm = torch.randperm(T)
+    with torch.no_grad():
+        y = model(readings, positions)
+        y_perm = model(readings[:, perm], positions[:, perm])
+    assert y.shape == (6, 6) and torch.isfinite(y).all()
+    torch.testing.assert_close(y_perm, y, atol=1e-5, rtol=1e-5)
+    # an empty frame reads the head at a zero pooled feature, whatever the readout
+    torch.testing.assert_close(y[0], model.head(torch.zeros(model.head[0].in_features)))
+
+
+def test_tacgnn_readout_widths(rest):
+    """'all' concatenates the L pooled layers; 'jk' maps them back to C; 'last' is the paper's C."""
+    assert make("tacgnn", rest, pool="last").head[0].in_features == 32
+    assert make("tacgnn", rest, pool="all").head[0].in_features == 96
+    jk = make("tacgnn", rest, pool="jk")
+    assert jk.head[0].in_features == 32 and jk.jk.in_features == 96 and jk.jk.bias is None
+    assert len(make("tacgnn", rest, head_layers=3).head) == 5  # Linear ReLU Linear ReLU Linear
+
+
+def test_log_force_feature_changes_the_input(rest):
+    """The same weights read log(f) instead of f: different outputs, both finite."""
+    torch.manual_seed(0)
+    raw = make("tacgnn", rest, use_force=True, force_feature="raw")
+    log = make("tacgnn", rest, use_force=True, force_feature="log")
+    log.load_state_dict(raw.state_dict())
+    readings, positions, _ = blob_frames(rest, 3, seed=6)
+    with torch.no_grad():
+        a, b = raw(readings, positions), log(readings, positions)
+    assert torch.isfinite(b).all() and not torch.allclose(a, b)
+
+
+@pytest.mark.parametrize("field,value", [("pool", "mean"), ("force_feature", "sqrt"), ("message_layers", 1),
+                                         ("head_hidden", -1), ("pos_scale", 0.0), ("residual", "yes")])
+def test_new_config_fields_are_validated(field, value):
+    with pytest.raises(ValueError, match=field):
+        PerceptionModelConfig(**{field: value})

@@ -89,3 +89,51 @@ def test_bad_checkpoints_and_datasets_fail_loudly(dataset, tmp_path):
         load_checkpoint(tmp_path / "evil.pt")
     train(PerceptionTrainConfig.for_task("baoding", "mlp", epochs=1), dataset, tmp_path / "ok", log=lambda *_: None)
     assert "position_rmse_cm" in evaluate(tmp_path / "ok" / "checkpoint.pt", dataset, dead_fraction=0.1)
+
+
+def test_lr_schedules():
+    from tacgnn.perception.train import lr_factor
+
+    def cfg(**kw):
+        return PerceptionTrainConfig.for_task("baoding", **kw)
+
+    assert lr_factor(cfg(lr_schedule="constant"), 50, 100, 10) == 1.0
+    cos = cfg(lr_schedule="cosine", lr_final=0.1)
+    assert lr_factor(cos, 0, 100, 10) == pytest.approx(1.0)
+    assert lr_factor(cos, 100, 100, 10) == pytest.approx(0.1)
+    assert lr_factor(cos, 50, 100, 10) == pytest.approx(0.55)
+    exp = cfg(lr_schedule="exp", lr_decay=0.5)
+    # exp depends on the epoch only, not on the run's length: a resumed longer run matches
+    assert lr_factor(exp, 20, 100, 10) == lr_factor(exp, 20, 1000, 10) == pytest.approx(0.25)
+    assert lr_factor(cfg(lr_schedule="constant", warmup_epochs=1.0), 4, 100, 10) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="lr_schedule"):
+        cfg(lr_schedule="linear")
+
+
+def test_output_bias_starts_at_the_mean_label(dataset, tmp_path):
+    """init_output_bias: before any step the model of an empty frame predicts the mean label."""
+    from tacgnn.perception.train import load_tactile, split
+
+    cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, lr=1e-12)
+    train(cfg, dataset, tmp_path / "b", log=lambda *_: None)
+    model = load_model(tmp_path / "b" / "checkpoint.pt")[0]
+    mean = split(load_tactile(dataset, "baoding"), 0.8, 0)[0].targets.mean(0)
+    torch.testing.assert_close(model.head[-1].bias.detach(), mean, atol=1e-6, rtol=1e-6)
+
+
+def test_checkpoints_from_before_new_keys_load_as_trained(dataset, tmp_path):
+    """A checkpoint written before the readout/schedule options existed rebuilds the paper's model."""
+    cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, lr_schedule="constant",
+                                         init_output_bias=False,
+                                         model_kw=dict(use_force=False, force_feature="raw", pool="last"))
+    train(cfg, dataset, tmp_path / "old", log=lambda *_: None)
+    path = tmp_path / "old" / "checkpoint.pt"
+    payload = torch.load(path, weights_only=True)
+    for key in ("lr_schedule", "lr_final", "lr_decay", "warmup_epochs", "init_output_bias"):
+        payload["config"].pop(key)
+    for key in ("force_feature", "pos_scale", "message_layers", "head_layers", "head_hidden", "residual", "pool"):
+        payload["config"]["model"].pop(key)
+    torch.save(payload, path)
+    model, loaded, _ = load_model(path)
+    assert loaded.model.pool == "last" and loaded.lr_schedule == "constant" and not loaded.model.use_force
+    assert model.head[0].in_features == 32
