@@ -1,8 +1,10 @@
 """Regenerate the paper's Tables I and II on our simulator, and the robustness table.
 
-    .venv/bin/python experiments/perception_tables.py [--quick]
+    .venv/bin/python experiments/perception_tables.py [--quick] [--baoding-data DIR]
 
-Makes the datasets it needs under data/ (resumable), trains every model x seed under
+Makes the datasets it needs under data/ (resumable; Baoding frames from the shipped
+ground-truth policy, src/tacgnn/assets/baoding_gt_policy.pt, unless --baoding-data names an
+existing dataset), trains every model x seed under
 runs/perception/ (each run resumable), and writes docs/perception_results.md and
 docs/perception_curves.png, with the paper's figures beside ours. `--quick` is a
 smoke-sized version (minutes, not hours) for checking the pipeline.
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -35,16 +38,24 @@ PAPER_TABLE2 = {  # model: (train cm, test cm)
 ROOT = Path(__file__).resolve().parents[1]
 
 
+GT_POLICY = ROOT / "src" / "tacgnn" / "assets" / "baoding_gt_policy.pt"
+
+
 def ensure_datasets(args) -> dict[str, Path]:
-    paths = {"baoding": ROOT / "data" / f"baoding_{args.baoding_samples}"}
-    baoding_data.generate(baoding_data.BaodingDataConfig(samples=args.baoding_samples, shard_size=args.shard),
-                          paths["baoding"])
+    if args.baoding_data:
+        paths = {"baoding": Path(args.baoding_data)}
+        read_manifest(paths["baoding"])  # exists and is complete, or a clear error
+    else:
+        paths = {"baoding": ROOT / "data" / f"baoding_gt_{args.baoding_samples}"}
+        baoding_data.generate(baoding_data.BaodingDataConfig(samples=args.baoding_samples, shard_size=args.shard,
+                                                             policy_checkpoint=str(GT_POLICY)), paths["baoding"])
     # the same motions seen by a skin of another pitch: models are evaluated on it untrained
     layout = baoding_data.BaodingDataConfig().env
     other = replace(layout, skin=layout.skin.with_pitch_scale(args.other_pitch))
     paths["baoding_other_pitch"] = ROOT / "data" / f"baoding_pitch{args.other_pitch}_{args.test_samples}"
     baoding_data.generate(baoding_data.BaodingDataConfig(samples=args.test_samples, shard_size=args.test_samples,
-                                                         seed=99, env=other), paths["baoding_other_pitch"])
+                                                         seed=99, env=other, policy_checkpoint=str(GT_POLICY)),
+                          paths["baoding_other_pitch"])
     for obj in ("cube", "cylinder", "meat_can"):
         paths[obj] = ROOT / "data" / f"{obj}_{args.grasp_samples}"
         grasp_data.generate(grasp_data.GraspDataConfig(samples=args.grasp_samples, shard_size=args.shard,
@@ -52,11 +63,19 @@ def ensure_datasets(args) -> dict[str, Path]:
     return paths
 
 
-def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = 0) -> dict:
-    name = f"{model}-{channels}" if model == "tacgnn" else model
-    run_dir = ROOT / "runs" / "perception" / task / (f"n{max_samples}" if max_samples else "all") / name / f"seed{seed}"
+def run_config(task: str, model: str, channels: int, seed: int, args, max_samples: int = 0) -> PerceptionTrainConfig:
     cfg = PerceptionTrainConfig.for_task(task, model, epochs=args.epochs, seed=seed, max_samples=max_samples,
-                                         model_kw={"channels": channels, "use_force": args.use_force})
+                                         model_kw={"channels": channels, **args.model_kw})
+    return replace(cfg, lr=1e-3, lr_schedule="constant", init_output_bias=False) if args.paper_setup else cfg
+
+
+def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = -1) -> dict:
+    max_samples = args.max_samples.get(task, 0) if max_samples < 0 else max_samples
+    name = f"{model}-{channels}" if model == "tacgnn" else model
+    setup = "paper" if args.paper_setup else "ours"
+    run_dir = (ROOT / "runs" / "perception" / setup / task / (f"n{max_samples}" if max_samples else "all") / name
+               / f"seed{seed}")
+    cfg = run_config(task, model, channels, seed, args, max_samples)
     ckpt = run_dir / "checkpoint.pt"
     if ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1:
         history = load_checkpoint(ckpt)["history"]
@@ -77,20 +96,33 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--epochs", type=int, default=10)
-    parser.add_argument("--use-force", action="store_true", help="TacGNN node feature: position and force")
+    parser.add_argument("--paper-setup", action="store_true",
+                        help="the paper's loop and TacGNN (lr 1e-3 constant, positions only, last-layer pool) "
+                             "instead of our training defaults")
+    parser.add_argument("--baoding-data", default="", help="an existing Baoding dataset (else made from the "
+                        "shipped ground-truth policy)")
+    parser.add_argument("--baoding-samples", type=int, default=25_000,
+                        help="frames used for Table II (the first ones of the dataset)")
     args = parser.parse_args()
-    args.baoding_samples, args.grasp_samples, args.test_samples, args.shard = 25_000, 20_000, 5_000, 5_000
+    args.grasp_samples, args.test_samples, args.shard = 20_000, 5_000, 5_000
+    args.model_kw = {"use_force": False, "force_feature": "raw", "pool": "last"} if args.paper_setup else {}
     args.other_pitch = 1.25
     if args.quick:
         args.baoding_samples, args.grasp_samples, args.test_samples, args.shard = 2_000, 1_000, 1_000, 1_000
         args.seeds, args.epochs = 1, 2
     data = ensure_datasets(args)
+    args.max_samples = {"baoding": args.baoding_samples}
     seeds = range(args.seeds)
+    example = run_config("baoding", "tacgnn", 32, 0, args)
+    command = " ".join(["`.venv/bin/python experiments/perception_tables.py"] + [a for a in sys.argv[1:]]) + "`"
     lines = ["# Perception results (issue 3)", "",
-             "Made by `.venv/bin/python experiments/perception_tables.py"
-             + (" --quick" if args.quick else "") + (" --use-force" if args.use_force else "") + "`; "
-             f"{args.seeds} seed(s), {args.epochs} epochs, Adam 1e-3, batch 32, 80/20 split. "
-             f"Datasets: Baoding {args.baoding_samples} frames, grasps {args.grasp_samples} per object "
+             f"Made by {command}; {args.seeds} seed(s), {args.epochs} epochs, Adam lr {example.lr} "
+             f"({example.lr_schedule} schedule), batch {example.batch_size}, 80/20 split"
+             + (", the paper's loop and TacGNN" if args.paper_setup else
+                f"; TacGNN node input position + {example.model.force_feature} force, readout "
+                f"`pool={example.model.pool}`") + ". "
+             f"Datasets: Baoding {args.baoding_samples} frames of `{data['baoding'].relative_to(ROOT) if data['baoding'].is_absolute() else data['baoding']}`"
+             f", grasps {args.grasp_samples} per object "
              "(the paper: 1,000,000 steps and 200,000 grasps). Ours: mean ± std over seeds.", ""]
 
     # Table II: ball positions
@@ -99,14 +131,23 @@ def main() -> None:
     for model, ch in models:
         table2[(model, ch)] = [run("baoding", model, ch, s, data["baoding"], args) for s in seeds]
     lines += ["## Table II: ball positions (RMSE, cm)", "",
-              "| model | train (ours) | test (ours) | train (paper) | test (paper) | s/epoch |", "|---|---|---|---|---|---|"]
+              "Test error split by what the skin sees: *touched* = balls with an activated taxel "
+              "within 3 cm of the centre, *untouched* = the others (resting on the other ball or on "
+              "a part of the hand without skin); `tacgnn.perception.train.ball_visibility_errors`.", "",
+              "| model | train (ours) | test (ours) | test, touched balls | test, untouched balls | train (paper) "
+              "| test (paper) | s/epoch |", "|---|---|---|---|---|---|---|---|"]
+    blind_share = []
     for (model, ch), runs in table2.items():
         key = f"tacgnn-{ch}" if model == "tacgnn" else model
         tr = [r["final"]["train/position_rmse_cm"] for r in runs]
         te = [r["final"]["test/position_rmse_cm"] for r in runs]
+        vis = [evaluate(r["ckpt"], data["baoding"]) for r in runs]
+        blind_share.append(vis[0]["blind_fraction"])
         sec = np.mean([h["seconds"] for r in runs for h in r["history"]])
         p = PAPER_TABLE2[key]
-        lines.append(f"| {key} | {mean_std(tr)} | {mean_std(te)} | {p[0]} | {p[1]} | {sec:.1f} |")
+        lines.append(f"| {key} | {mean_std(tr)} | {mean_std(te)} | {mean_std([v['seen_rmse_cm'] for v in vis])} | "
+                     f"{mean_std([v['blind_rmse_cm'] for v in vis])} | {p[0]} | {p[1]} | {sec:.1f} |")
+    lines += ["", f"Untouched balls: {100 * blind_share[0]:.1f} % of the test balls.", ""]
 
     # Table I: objects
     lines += ["", "## Table I: object pose after a power grasp (test RMSE: position cm / orientation deg)", "",
@@ -135,21 +176,23 @@ def main() -> None:
         lines.append(f"| {key} | " + " | ".join(cols) + " |")
 
     # Learning curve over dataset size (seed 0)
-    sizes = [n for n in (2_500, 5_000, 10_000) if n < args.baoding_samples] + [0]
+    total = sum(s["samples"] for s in read_manifest(data["baoding"])["shards"].values())
+    sizes = sorted({n for n in (2_500, 5_000, 10_000, args.baoding_samples) if n < total} | {total})
     curve = {}
-    for model, ch in (("mlp", 32), ("tacgnn", 32)):
-        curve[model] = [run("baoding", model, ch, 0, data["baoding"], args, max_samples=n)["final"]["test/position_rmse_cm"]
-                        for n in sizes]
+    for model, ch in (("mlp", 32), ("gcn", 32), ("tacgnn", 32)):
+        curve[model] = [run("baoding", model, ch, 0, data["baoding"], args, max_samples=0 if n == total else n)
+                        ["final"]["test/position_rmse_cm"] for n in sizes]
     lines += ["", "## Does more data change the ranking? (ball positions, seed 0, test RMSE cm)", "",
-              "| samples | " + " | ".join(curve) + " |", "|---|" + "---|" * len(curve)]
+              "| frames | " + " | ".join(curve) + " |", "|---|" + "---|" * len(curve)]
     for i, n in enumerate(sizes):
-        lines.append(f"| {n or args.baoding_samples} | " + " | ".join(f"{curve[m][i]:.3f}" for m in curve) + " |")
+        lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]:.3f}" for m in curve) + " |")
 
-    plot_curves(table2, ROOT / "docs" / "perception_curves.png")
-    lines += ["", "Learning curves (test RMSE per epoch, seed 0): `docs/perception_curves.png`.", ""]
-    out = ROOT / "docs" / "perception_results.md"
+    stem = "perception_results" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
+    plot_curves(table2, ROOT / "docs" / f"{stem}.png")
+    lines += ["", f"Learning curves (test RMSE per epoch, seed 0): `docs/{stem}.png`.", ""]
+    out = ROOT / "docs" / f"{stem}.md"
     out.write_text("\n".join(lines))
-    (ROOT / "docs" / "perception_results.json").write_text(json.dumps(
+    (ROOT / "docs" / f"{stem}.json").write_text(json.dumps(
         {f"{m}-{c}": [r["final"] for r in runs] for (m, c), runs in table2.items()}, indent=1))
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "

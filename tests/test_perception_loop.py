@@ -30,21 +30,30 @@ def test_policy_trains_with_perception_in_the_loop_and_resumes(tmp_path):
     assert load_checkpoint(tmp_path / "run" / "model_000006.pt")["perception"]["updates"] == 3
 
 
-def test_online_perception_learns_from_recorded_frames(tmp_path):
+@pytest.mark.parametrize("joint_inputs", [0, 16])
+def test_online_perception_learns_from_recorded_frames(tmp_path, joint_inputs):
+    """Skin only (the paper) or skin and the hand's joint angles: the model learns from what it records."""
     from tacgnn.config import to_dict
     from tacgnn.envs.baoding import BaodingEnv
     from tacgnn.envs.scripted import FingerWave
     from tacgnn.learning.online_perception import OnlinePerception
 
-    cfg = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), epochs=20, buffer_size=2048)
+    cfg = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp", joint_inputs=joint_inputs), epochs=20,
+                                 buffer_size=2048)
     env = BaodingEnv(BaodingConfig(num_envs=32, obs_mode="perceived"))
     perception = OnlinePerception(cfg, to_dict(env.config.skin))
-    env.perception = perception
+    calls = []
+    env.perception = lambda *inputs: calls.append(len(inputs)) or perception(*inputs)
+    env.perception.joint_inputs = perception.joint_inputs
     obs, _ = env.reset(seed=0)
     wave = FingerWave(env.last_action[0], 32, seed=0)
     for _ in range(64):
         obs, *_, info = env.step(wave())
         perception.record(info)
+    assert set(calls) == {3 if joint_inputs else 2}  # the env hands the joint angles to a model that reads them
+    if joint_inputs:  # recorded beside each frame: real angles (rad) inside the hand's joint ranges
+        recorded = perception.joints[:perception.size]
+        assert recorded.abs().amax() > 0.1 and recorded.amin() > -0.5 and recorded.amax() < 1.75
     metrics = perception.update()
     assert metrics["perception/rmse_cm_after"] < 0.8 * metrics["perception/rmse_cm_before"]
 

@@ -61,7 +61,7 @@ def main() -> None:
     logf = open(run.parent / f"{args.name}.log", "w") if run.parent.mkdir(parents=True, exist_ok=True) is None else None
     last = train(cfg, ROOT / args.dataset, run, log=lambda s: (print(s, flush=True), print(s, file=logf, flush=True)))
     model, cfg2, _ = load_model(run / "checkpoint.pt")
-    data = load_tactile(ROOT / args.dataset, "baoding", cfg.max_samples)
+    data = load_tactile(ROOT / args.dataset, "baoding", cfg.max_samples, joints=cfg.model.joint_inputs > 0)
     test = split(data, cfg.train_fraction, cfg.seed)[1]
     hist = json.loads((run / "history.json").read_text())
     row = {"name": args.name, "model": args.model, "dataset": args.dataset, "epochs": args.epochs,

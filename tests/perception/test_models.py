@@ -370,3 +370,24 @@ def test_log_force_feature_changes_the_input(rest):
 def test_new_config_fields_are_validated(field, value):
     with pytest.raises(ValueError, match=field):
         PerceptionModelConfig(**{field: value})
+
+
+@pytest.mark.parametrize("name", ["tacgnn", "mlp"])
+def test_joint_inputs(name, rest):
+    """A model that reads the hand's joint angles needs them, uses them, and stays finite on empty frames."""
+    torch.manual_seed(0)
+    model = make(name, rest, joint_inputs=16)
+    readings, positions, _ = blob_frames(rest, 4, seed=7)
+    readings[0] = 0.0
+    joints = torch.rand(4, 16)
+    y = model(readings, positions, joints)
+    assert y.shape == (4, 6) and torch.isfinite(y).all()
+    assert not torch.allclose(model(readings, positions, joints + 0.5)[0], y[0])  # even a blind frame
+    with pytest.raises(ValueError, match="joint"):
+        model(readings, positions)
+    with pytest.raises(ValueError, match="joints"):
+        model(readings, positions, joints[:, :3])
+    with pytest.raises(ValueError, match="without joint inputs"):
+        make(name, rest)(readings, positions, joints)
+    with pytest.raises(ValueError, match="joint_inputs"):
+        PerceptionModelConfig(name="gcn", joint_inputs=16)

@@ -137,3 +137,23 @@ def test_checkpoints_from_before_new_keys_load_as_trained(dataset, tmp_path):
     model, loaded, _ = load_model(path)
     assert loaded.model.pool == "last" and loaded.lr_schedule == "constant" and not loaded.model.use_force
     assert model.head[0].in_features == 32
+
+
+def test_ball_visibility_split():
+    """Ball 0 has an activated taxel at its surface, ball 1 none: errors land in the right group."""
+    from tacgnn.perception.train import TactileData, ball_visibility_errors
+
+    positions = torch.zeros(2, 3, 3)
+    positions[:, 0] = torch.tensor([0.0, 0.0, -2.6])  # under ball 0 (centre at 0)
+    positions[:, 1] = torch.tensor([20.0, 0.0, 0.0])  # active, but far from both balls
+    readings = torch.tensor([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0]])
+    positions[:, 2] = torch.tensor([6.0, 0.0, -2.6])  # under ball 1, but not active
+    targets = torch.tensor([[0.0, 0, 0, 6, 0, 0]] * 2)
+    pred = targets + torch.tensor([[0.1, 0.1, 0.1, 1.0, 1.0, 1.0]])
+    out = ball_visibility_errors(pred, TactileData(readings, positions, targets), match_balls=False)
+    assert out["seen_rmse_cm"] == pytest.approx(0.1) and out["blind_rmse_cm"] == pytest.approx(1.0)
+    assert out["blind_fraction"] == pytest.approx(0.5)
+    # with matching, a prediction of the balls in swapped order is scored against the swap
+    swapped = pred[:, [3, 4, 5, 0, 1, 2]]
+    again = ball_visibility_errors(swapped, TactileData(readings, positions, targets), match_balls=True)
+    assert again["seen_rmse_cm"] == pytest.approx(0.1)

@@ -208,6 +208,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if mode == "perceived":
             if self.perception is None:
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
+            if getattr(self.perception, "joint_inputs", 0):  # a model that reads the hand's pose too
+                joints = self.sim.qpos[np.ix_(ids, self.joint_qpos_adr)]
+                return np.asarray(self.perception(tactile, taxel_pos, joints), dtype=np.float64).reshape(len(ids), 6)
             return np.asarray(self.perception(tactile, taxel_pos), dtype=np.float64).reshape(len(ids), 6)
         raise AssertionError(mode)
 
@@ -312,6 +315,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         }
         if tactile is not None:
             info["tactile"] = tactile
+            info["joint_pos"] = self.sim.qpos[:, self.joint_qpos_adr]  # rad, beside each frame of the skin
         if taxel_pos is not None:
             info["taxel_pos"] = taxel_pos
         obs = self._observe(all_ids, tactile, taxel_pos)

@@ -89,16 +89,23 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Evaluate a PPO checkpoint on a Baoding task.")
+    parser = argparse.ArgumentParser(description="Evaluate a PPO checkpoint on the Baoding tasks (Table III).")
     parser.add_argument("checkpoint", type=Path)
-    parser.add_argument("--task", default="simple", choices=("simple", "middle", "hard"))
+    parser.add_argument("--task", default="all", choices=("simple", "middle", "hard", "all"))
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, help="also write the results as JSON here")
     args = parser.parse_args(argv)
-    print(json.dumps(evaluate(args.checkpoint, args.task, args.episodes, args.envs, args.seed), indent=2))
+    tasks = ("simple", "middle", "hard") if args.task == "all" else (args.task,)
+    results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed) for task in tasks]
+    print(f"{args.checkpoint}: {args.episodes} episodes per task, deterministic policy")
+    print(f"{'task':8s} {'success':>8s} {'95% CI':>13s} {'steps':>6s} {'falls':>6s}")
+    for r in results:
+        lo, hi = r["ci95"]
+        print(f"{r['task']:8s} {100 * r['success_rate']:7.1f}% {100 * lo:5.1f}-{100 * hi:5.1f}% "
+              f"{r['mean_steps_to_success']:6.1f} {100 * r['fall_rate']:5.1f}%")
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(results if len(results) > 1 else results[0], indent=2))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -69,9 +69,11 @@ class OnlinePerception:
         if cfg.pretrained:
             payload = load_perception_checkpoint(cfg.pretrained)
             stored = payload["config"]["model"]
-            if stored["name"] != model_cfg.name or stored["channels"] != model_cfg.channels:
-                raise ValueError(f"{cfg.pretrained}: a {stored['name']}-{stored['channels']} model, "
-                                 f"config asks for {model_cfg.name}-{model_cfg.channels}")
+            if (stored["name"], stored["channels"], stored.get("joint_inputs", 0)) != \
+                    (model_cfg.name, model_cfg.channels, model_cfg.joint_inputs):
+                raise ValueError(f"{cfg.pretrained}: a {stored['name']}-{stored['channels']} model with "
+                                 f"{stored.get('joint_inputs', 0)} joint inputs, config asks for "
+                                 f"{model_cfg.name}-{model_cfg.channels} with {model_cfg.joint_inputs}")
             self.model.load_state_dict(payload["model"])
         self.optim = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.objective = Objective("baoding", cfg.match_balls)
@@ -79,16 +81,25 @@ class OnlinePerception:
         self.readings = torch.zeros(n, num_taxels)
         self.positions = torch.zeros(n, num_taxels, 3)
         self.labels = torch.zeros(n, 6)
+        self.joint_inputs = model_cfg.joint_inputs
+        self.joints = torch.zeros(n, self.joint_inputs)  # (n, 0) for a skin-only model
         self.size, self.head, self.steps_seen, self.updates = 0, 0, 0, 0
         self._gen = torch.Generator().manual_seed(seed)
 
     @torch.inference_mode()
-    def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray) -> np.ndarray:
-        """(N, 6) ball positions in metres from (N, T) readings and (N, T, 3) positions in metres."""
+    def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
+        """(N, 6) ball positions in metres from (N, T) readings, (N, T, 3) positions in metres
+        and, for a model with `joint_inputs`, (N, 16) joint angles in rad."""
         self.model.eval()
-        out = self.model(torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
-                         torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32)))
-        return out.numpy().astype(np.float64) / 100.0
+        inputs = [torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
+                  torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32))]
+        if joints is not None:
+            inputs.append(torch.from_numpy(np.ascontiguousarray(joints, np.float32)))
+        return self.model(*inputs).numpy().astype(np.float64) / 100.0
+
+    def _inputs(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        inputs = (self.readings[idx], self.positions[idx])
+        return (*inputs, self.joints[idx]) if self.joint_inputs else inputs
 
     def record(self, info: dict) -> None:
         """Keep this step's frames of envs whose episode goes on (a fall's last frame is noise)."""
@@ -101,6 +112,8 @@ class OnlinePerception:
         y = torch.from_numpy((info["ball_pos"][keep].reshape(-1, 6) * 100.0).astype(np.float32))
         idx = (self.head + torch.arange(len(y))) % self.cfg.buffer_size
         self.readings[idx], self.positions[idx], self.labels[idx] = r, p.float(), y
+        if self.joint_inputs:
+            self.joints[idx] = torch.from_numpy(info["joint_pos"][keep]).float()
         self.head = int((self.head + len(y)) % self.cfg.buffer_size)
         self.size = min(self.cfg.buffer_size, self.size + len(y))
 
@@ -116,7 +129,7 @@ class OnlinePerception:
             order = torch.randperm(n, generator=self._gen)
             for i in range(0, n, self.cfg.batch_size):
                 idx = order[i:i + self.cfg.batch_size]
-                loss = self.objective.loss(self.model(self.readings[idx], self.positions[idx]), self.labels[idx])
+                loss = self.objective.loss(self.model(*self._inputs(idx)), self.labels[idx])
                 if not torch.isfinite(loss):
                     raise FloatingPointError("perception loss is not finite; the update is abandoned")
                 self.optim.zero_grad(set_to_none=True)
@@ -130,7 +143,7 @@ class OnlinePerception:
     def _rmse(self, n: int) -> float:
         self.model.eval()
         idx = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:4096]
-        pred = self.model(self.readings[idx], self.positions[idx])
+        pred = self.model(*self._inputs(idx))
         return self.objective.metrics(pred, self.labels[idx])["position_rmse_cm"]
 
     def state_dict(self) -> dict:

@@ -96,6 +96,7 @@ class PerceptionModelConfig:
     head_hidden: int = 0  # width of its hidden layers; 0 = width of all pooled features (C, or L*C with pool all/jk)
     residual: bool = False  # h^l = conv(h^{l-1}) + h^{l-1} where the widths match
     pool: str = "last"  # global max pool of the last layer (the paper) or of every layer: see POOLS
+    joint_inputs: int = 0  # TacGNN and MLP: hand joint angles given beside the skin (0 = skin only, the paper)
     # MLP
     mlp_hidden: tuple[int, ...] = (64, 64)
     # CNN
@@ -144,6 +145,10 @@ class PerceptionModelConfig:
             raise ValueError(f"pool must be one of {POOLS}, got {self.pool!r}")
         if isinstance(self.pos_scale, bool) or not isinstance(self.pos_scale, (int, float)) or not self.pos_scale > 0:
             raise ValueError(f"pos_scale must be a positive number, got {self.pos_scale!r}")
+        if isinstance(self.joint_inputs, bool) or not isinstance(self.joint_inputs, int) or self.joint_inputs < 0:
+            raise ValueError(f"joint_inputs must be an int >= 0, got {self.joint_inputs!r}")
+        if self.joint_inputs and self.name not in ("tacgnn", "mlp"):
+            raise ValueError(f"joint_inputs is supported by tacgnn and mlp, not {self.name!r}")
         for f in ("use_force", "self_loop", "exact_graph", "residual"):
             if not isinstance(getattr(self, f), bool):
                 raise ValueError(f"{f} must be a bool, got {getattr(self, f)!r}")
@@ -160,8 +165,10 @@ class PerceptionModel(nn.Module):
     """Base class: input checks shared by all models."""
 
     num_taxels: int
+    joint_inputs: int = 0
+    """Hand joint angles (rad) the model reads beside the skin; 0 = the skin alone."""
 
-    def _check(self, readings: Tensor, positions: Tensor) -> None:
+    def _check(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> None:
         T = self.num_taxels
         if readings.dim() != 2 or readings.shape[1] != T:
             raise ValueError(f"readings must be (B, {T}), got {tuple(readings.shape)}")
@@ -170,6 +177,16 @@ class PerceptionModel(nn.Module):
         # one reduction instead of a full mask: NaN anywhere makes the sum NaN
         if torch.isnan(readings.sum()) and torch.isnan(readings).any():
             raise ValueError("readings contain NaN")
+        if self.joint_inputs:
+            if joints is None:
+                raise ValueError(f"this model reads {self.joint_inputs} joint angles: pass joints (B, "
+                                 f"{self.joint_inputs})")
+            if joints.shape != (readings.shape[0], self.joint_inputs):
+                raise ValueError(f"joints must be (B, {self.joint_inputs}), got {tuple(joints.shape)}")
+            if not torch.isfinite(joints.sum()):
+                raise ValueError("joints contain NaN or inf")
+        elif joints is not None:
+            raise ValueError("this model was built without joint inputs (joint_inputs=0) but was given joints")
 
 
 def _mlp(sizes: list[int]) -> nn.Sequential:
@@ -341,6 +358,7 @@ class TacGNN(PerceptionModel):
         residual: bool = False,
         pool: str = "last",
         head_hidden: int = 0,
+        joint_inputs: int = 0,
     ) -> None:
         super().__init__()
         if force_feature not in FORCE_FEATURES:
@@ -354,6 +372,7 @@ class TacGNN(PerceptionModel):
         self.exact_graph = exact_graph
         self.force_feature, self.pos_scale = force_feature, float(pos_scale)
         self.residual, self.pool = residual, pool
+        self.joint_inputs = joint_inputs
         in_ch = 4 if use_force else 3
         self.convs = nn.ModuleList(
             EdgeMaxConv(in_ch if l == 0 else channels, channels, message_layers) for l in range(len(self.k))
@@ -363,20 +382,20 @@ class TacGNN(PerceptionModel):
         self.jk = nn.Linear(L * channels, channels, bias=False) if pool == "jk" and L > 1 else None
         pooled = channels * (L if pool == "all" else 1)
         hidden = head_hidden or channels * (L if pool in ("all", "jk") else 1)
-        self.head = _mlp([pooled] + [hidden] * (head_layers - 1) + [out_dim])
+        self.head = _mlp([pooled + joint_inputs] + [hidden] * (head_layers - 1) + [out_dim])
 
     def reset_parameters(self) -> None:
         _reset_all(self)
 
-    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
-        self._check(readings, positions)
+    def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
+        self._check(readings, positions, joints)
         B, T = readings.shape
         active = (readings > 0).view(-1).nonzero().squeeze(1)  # frame by frame, taxel order
         x = positions.reshape(B * T, 3).index_select(0, active)
         if not torch.isfinite(x.sum()):  # one cheap reduction instead of a mask
             raise ValueError("positions of activated taxels contain NaN or inf")
         force = readings.reshape(-1).index_select(0, active) if self.use_force else None
-        return self.forward_nodes(x, torch.div(active, T, rounding_mode="floor"), B, force)
+        return self.forward_nodes(x, torch.div(active, T, rounding_mode="floor"), B, force, joints)
 
     def forward_pyg(self, data) -> Tensor:
         """Interop: a torch_geometric ``Data``/``Batch`` whose nodes are the activated taxels.
@@ -394,9 +413,10 @@ class TacGNN(PerceptionModel):
             if data.x is None:
                 raise ValueError("use_force=True needs data.x (force per node)")
             force = data.x.reshape(-1)
-        return self.forward_nodes(data.pos, batch, B, force)
+        return self.forward_nodes(data.pos, batch, B, force, getattr(data, "joints", None))
 
-    def forward_nodes(self, x: Tensor, batch: Tensor, num_graphs: int, force: Tensor | None = None) -> Tensor:
+    def forward_nodes(self, x: Tensor, batch: Tensor, num_graphs: int, force: Tensor | None = None,
+                      joints: Tensor | None = None) -> Tensor:
         """Core network on a flat node list (PyG style).
 
         Shapes:
@@ -406,7 +426,7 @@ class TacGNN(PerceptionModel):
         """
         B = num_graphs
         if x.shape[0] == 0:  # whole batch in the blind area: pooled feature is 0
-            return self.head(x.new_zeros(B, self.head[0].in_features))
+            return self._readout(x.new_zeros(B, self.head[0].in_features - self.joint_inputs), joints)
         if self.pos_scale != 1.0:
             x = x * self.pos_scale
         pos, mask = to_dense(x, batch, batch_size=B)
@@ -449,11 +469,15 @@ class TacGNN(PerceptionModel):
                 h, x = h.index_select(0, keep), x.index_select(0, keep)
         pooled.append(self._max_pool(h, mask, B))
         if len(pooled) == 1:
-            return self.head(pooled[0])
+            return self._readout(pooled[0], joints)
         if self.pool == "sum":
-            return self.head(torch.stack(pooled).sum(0))
+            return self._readout(torch.stack(pooled).sum(0), joints)
         z = torch.cat(pooled, 1)
-        return self.head(z if self.jk is None else self.jk(z))
+        return self._readout(z if self.jk is None else self.jk(z), joints)
+
+    def _readout(self, z: Tensor, joints: Tensor | None) -> Tensor:
+        """The head on the pooled skin feature, with the joint angles beside it when the model reads them."""
+        return self.head(z if joints is None else torch.cat([z, joints.to(z.dtype)], 1))
 
     @staticmethod
     def _max_pool(h: Tensor, mask: Tensor, B: int) -> Tensor:
@@ -494,17 +518,18 @@ class TactileMLP(PerceptionModel):
         - **output:** ``(B, out_dim)``
     """
 
-    def __init__(self, out_dim: int = 6, num_taxels: int = 653, hidden: tuple[int, ...] = (64, 64)) -> None:
+    def __init__(self, out_dim: int = 6, num_taxels: int = 653, hidden: tuple[int, ...] = (64, 64),
+                 joint_inputs: int = 0) -> None:
         super().__init__()
-        self.num_taxels, self.out_dim = num_taxels, out_dim
-        self.mlp = _mlp([num_taxels, *hidden, out_dim])
+        self.num_taxels, self.out_dim, self.joint_inputs = num_taxels, out_dim, joint_inputs
+        self.mlp = _mlp([num_taxels + joint_inputs, *hidden, out_dim])
 
     def reset_parameters(self) -> None:
         _reset_all(self)
 
-    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
-        self._check(readings, positions)
-        return self.mlp(readings)
+    def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
+        self._check(readings, positions, joints)
+        return self.mlp(readings if joints is None else torch.cat([readings, joints.to(readings.dtype)], 1))
 
 
 class TactileCNN(PerceptionModel):
@@ -555,8 +580,8 @@ class TactileCNN(PerceptionModel):
     def reset_parameters(self) -> None:
         _reset_all(self)
 
-    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
-        self._check(readings, positions)
+    def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
+        self._check(readings, positions, joints)
         B, S = readings.shape[0], self.image_size
         img = readings.new_zeros(B, S * S)
         img[:, self.pixel] = readings
@@ -629,8 +654,8 @@ class TactileGCN(PerceptionModel):
                 self._adj_cache = (key, adj.to_sparse_csr())
         return self._adj_cache[1]
 
-    def forward(self, readings: Tensor, positions: Tensor) -> Tensor:
-        self._check(readings, positions)
+    def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
+        self._check(readings, positions, joints)
         B, T = readings.shape
         x = torch.cat([readings.unsqueeze(-1), positions], -1).reshape(B * T, 4)
         adj = self._batched_adjacency(B)
@@ -664,9 +689,9 @@ def build_model(
     if c.name == "tacgnn":
         return TacGNN(c.out_dim, c.num_taxels, c.channels, c.k, c.sample_ratio, c.downsample_layers,
                       c.use_force, c.self_loop, c.fps_start, c.exact_graph, c.force_feature, c.pos_scale,
-                      c.message_layers, c.head_layers, c.residual, c.pool, c.head_hidden)
+                      c.message_layers, c.head_layers, c.residual, c.pool, c.head_hidden, c.joint_inputs)
     if c.name == "mlp":
-        return TactileMLP(c.out_dim, c.num_taxels, c.mlp_hidden)
+        return TactileMLP(c.out_dim, c.num_taxels, c.mlp_hidden, c.joint_inputs)
     if c.name == "cnn":
         return TactileCNN(c.out_dim, c.num_taxels, c.image_size, cnn_layout)
     if c.name == "gcn":

@@ -45,7 +45,7 @@ LR_SCHEDULES = ("constant", "cosine", "step", "exp")
 LEGACY_TRAIN_VALUES = {"lr_schedule": "constant", "lr_final": 0.01, "lr_decay": 0.8, "warmup_epochs": 0.0,
                        "init_output_bias": False}
 LEGACY_MODEL_VALUES = {"force_feature": "raw", "pos_scale": 1.0, "message_layers": 2, "head_layers": 2,
-                       "head_hidden": 0, "residual": False, "pool": "last"}
+                       "head_hidden": 0, "residual": False, "pool": "last", "joint_inputs": 0}
 
 
 def lr_factor(cfg: "PerceptionTrainConfig", step: int, total_steps: int, steps_per_epoch: int) -> float:
@@ -125,21 +125,29 @@ class PerceptionTrainConfig:
 
 @dataclass
 class TactileData:
-    """A dataset in memory as tensors: readings (N, T) N, positions (N, T, 3) cm, targets (N, D)."""
+    """A dataset in memory as tensors: readings (N, T) N, positions (N, T, 3) cm, targets (N, D),
+    and joint angles (N, 16) rad for models that read them (else None)."""
 
     readings: torch.Tensor
     positions: torch.Tensor
     targets: torch.Tensor
+    joints: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.targets)
 
     def subset(self, idx) -> "TactileData":
-        return TactileData(self.readings[idx], self.positions[idx], self.targets[idx])
+        joints = None if self.joints is None else self.joints[idx]
+        return TactileData(self.readings[idx], self.positions[idx], self.targets[idx], joints)
+
+    def batch(self, idx) -> tuple[torch.Tensor, ...]:
+        """A model's inputs for rows `idx`: (readings, positions) or (readings, positions, joints)."""
+        inputs = (self.readings[idx], self.positions[idx])
+        return inputs if self.joints is None else (*inputs, self.joints[idx])
 
 
-def load_tactile(root: str | Path, task: TaskName, max_samples: int = 0) -> TactileData:
-    """Read a dataset for `task` (checks that its kind matches)."""
+def load_tactile(root: str | Path, task: TaskName, max_samples: int = 0, joints: bool = False) -> TactileData:
+    """Read a dataset for `task` (checks that its kind matches); `joints` also reads the joint angles."""
     meta = read_manifest(root)["metadata"]
     kind = "baoding" if task == "baoding" else "grasp"
     if meta.get("kind") != kind or (kind == "grasp" and meta.get("object") != task):
@@ -147,11 +155,12 @@ def load_tactile(root: str | Path, task: TaskName, max_samples: int = 0) -> Tact
                          f"task '{task}' needs kind={kind!r}" + ("" if kind == "baoding" else f" object={task!r}"))
     fields = ["tactile", "taxel_pos", "ball_pos"] if kind == "baoding" else \
         ["tactile", "taxel_pos", "object_pos", "object_rot"]
-    data = load(root, fields)
+    data = load(root, fields + (["joint_pos"] if joints else []))
     if max_samples:
         data = {k: v[:max_samples] for k, v in data.items()}
     return TactileData(torch.from_numpy(data["tactile"]), torch.from_numpy(data["taxel_pos"] * 100.0),
-                       torch.from_numpy(targets(data, task)))
+                       torch.from_numpy(targets(data, task)),
+                       torch.from_numpy(data["joint_pos"]).float() if joints else None)
 
 
 def split(data: TactileData, train_fraction: float, seed: int) -> tuple[TactileData, TactileData]:
@@ -163,8 +172,7 @@ def split(data: TactileData, train_fraction: float, seed: int) -> tuple[TactileD
 @torch.no_grad()
 def predict(model: PerceptionModel, data: TactileData, batch: int = 1024) -> torch.Tensor:
     model.eval()
-    return torch.cat([model(data.readings[i:i + batch], data.positions[i:i + batch])
-                      for i in range(0, len(data), batch)])
+    return torch.cat([model(*data.batch(slice(i, i + batch))) for i in range(0, len(data), batch)])
 
 
 def make_model(cfg: PerceptionModelConfig, rest_positions_cm: torch.Tensor | None) -> PerceptionModel:
@@ -249,7 +257,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt_path = run_dir / "checkpoint.pt"
     meta = read_manifest(dataset)["metadata"]
-    data = load_tactile(dataset, cfg.task, cfg.max_samples)
+    data = load_tactile(dataset, cfg.task, cfg.max_samples, joints=cfg.model.joint_inputs > 0)
     num_taxels = data.readings.shape[1]
     if cfg.model.num_taxels != num_taxels:
         cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, num_taxels=num_taxels))
@@ -286,7 +294,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
         total, batches = 0.0, 0
         for i in range(0, len(order), cfg.batch_size):
             idx = order[i:i + cfg.batch_size]
-            loss = objective.loss(model(train_set.readings[idx], train_set.positions[idx]), train_set.targets[idx])
+            loss = objective.loss(model(*train_set.batch(idx)), train_set.targets[idx])
             if not torch.isfinite(loss):
                 raise FloatingPointError(f"non-finite loss at epoch {epoch}, batch {batches}; weights left unchanged")
             optim.zero_grad(set_to_none=True)
@@ -328,7 +336,8 @@ def evaluate(checkpoint: str | Path, dataset: str | Path, dead_fraction: float =
     real skin with broken taxels would read.
     """
     model, cfg, _ = load_model(checkpoint)
-    data = load_tactile(dataset, cfg.task)
+    # the training run's frames (max_samples), so that its test split is the one it never saw
+    data = load_tactile(dataset, cfg.task, 0 if whole else cfg.max_samples, joints=cfg.model.joint_inputs > 0)
     if data.readings.shape[1] != cfg.model.num_taxels:
         raise ValueError(f"{dataset}: has {data.readings.shape[1]} taxels, the model was trained on "
                          f"{cfg.model.num_taxels}")
@@ -338,6 +347,39 @@ def evaluate(checkpoint: str | Path, dataset: str | Path, dead_fraction: float =
         dead = torch.randperm(test.readings.shape[1], generator=gen)[:int(round(dead_fraction * test.readings.shape[1]))]
         readings = test.readings.clone()
         readings[:, dead] = 0.0
-        test = TactileData(readings, test.positions, test.targets)
+        test = TactileData(readings, test.positions, test.targets, test.joints)
     torch.set_num_threads(cfg.threads)
-    return Objective(cfg.task, cfg.match_balls).metrics(predict(model, test), test.targets)
+    pred = predict(model, test)
+    metrics = Objective(cfg.task, cfg.match_balls).metrics(pred, test.targets)
+    if cfg.task == "baoding":
+        metrics.update(ball_visibility_errors(pred, test, cfg.match_balls))
+    return metrics
+
+
+def ball_visibility_errors(pred: torch.Tensor, data: TactileData, match_balls: bool,
+                           seen_within_cm: float = 3.0) -> dict:
+    """Baoding: position RMSE (cm) of balls the skin touches and of balls it does not.
+
+    A ball is "seen" when an activated taxel lies within `seen_within_cm` of its centre
+    (the balls' radius is 2.6 cm), "blind" otherwise: it rests on the other ball or on
+    a part of the hand without skin, and only indirect cues place it. With the
+    permutation-invariant loss the better ball assignment of each frame is used.
+    """
+    t = data.targets
+    if match_balls:
+        swapped = t[:, [3, 4, 5, 0, 1, 2]]
+        use = ((pred - swapped) ** 2).sum(1) < ((pred - t) ** 2).sum(1)
+        t = torch.where(use[:, None], swapped, t)
+    active = data.readings > 0
+    se = {True: [], False: []}
+    for b in range(2):
+        centre = t[:, None, 3 * b:3 * b + 3]
+        nearest = (data.positions - centre).norm(dim=-1).masked_fill(~active, float("inf")).amin(1)
+        err = ((pred[:, 3 * b:3 * b + 3] - t[:, 3 * b:3 * b + 3]) ** 2).mean(1)
+        seen = nearest < seen_within_cm
+        se[True].append(err[seen])
+        se[False].append(err[~seen])
+    seen_err, blind_err = torch.cat(se[True]), torch.cat(se[False])
+    rmse = lambda e: float(e.mean().sqrt()) if len(e) else float("nan")  # noqa: E731
+    return {"seen_rmse_cm": rmse(seen_err), "blind_rmse_cm": rmse(blind_err),
+            "blind_fraction": len(blind_err) / (len(seen_err) + len(blind_err))}
