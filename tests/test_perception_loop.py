@@ -79,3 +79,29 @@ def test_export_policy_is_small_and_acts_like_the_checkpoint(tmp_path):
     run = tmp_path / "ft"
     train(BaodingConfig(), PPOConfig(num_envs=4, max_iterations=1, init_from=str(ckpt), init_noise_std=0.2), run)
     assert load_checkpoint(run / "model_000001.pt")["iteration"] == 1
+
+
+def test_pretrained_perception_brings_its_architecture(tmp_path):
+    """A checkpoint trained offline with non-default settings (log force, jk readout, joint angles)
+    starts the loop as it was trained, whatever the loop's model config says besides the model kind."""
+    from tacgnn.config import to_dict
+    from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
+    from tacgnn.learning.online_perception import OnlinePerception
+    from tacgnn.perception.train import PerceptionTrainConfig, load_model
+    from tacgnn.perception.train import train as train_perception
+
+    generate(BaodingDataConfig(samples=128, shard_size=128, num_envs=16), tmp_path / "data")
+    cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, model_kw=dict(joint_inputs=16))
+    train_perception(cfg, tmp_path / "data", tmp_path / "perc", log=lambda *_: None)
+    offline = load_model(tmp_path / "perc" / "checkpoint.pt")[0]
+    skin = to_dict(BaodingConfig().skin)
+    online = OnlinePerception(OnlinePerceptionConfig(pretrained=str(tmp_path / "perc" / "checkpoint.pt")), skin)
+    assert online.cfg.model.joint_inputs == 16 and online.cfg.model.pool == cfg.model.pool
+    frames = np.random.default_rng(0).random((2, 653)).astype(np.float32), np.zeros((2, 653, 3))
+    joints = np.full((2, 16), 0.3)
+    import torch
+    expected = offline(torch.from_numpy(frames[0]), torch.zeros(2, 653, 3), torch.full((2, 16), 0.3)).detach()
+    np.testing.assert_allclose(online(*frames, joints), expected.numpy() / 100.0, rtol=1e-5, atol=1e-7)
+    with pytest.raises(ValueError, match="mlp"):
+        OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"),
+                                                pretrained=str(tmp_path / "perc" / "checkpoint.pt")), skin)

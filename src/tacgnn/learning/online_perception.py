@@ -60,20 +60,20 @@ class OnlinePerception:
     """Callable perception for `BaodingEnv(perception=...)` that learns from what it records."""
 
     def __init__(self, cfg: OnlinePerceptionConfig, skin: dict, seed: int = 0):
-        self.cfg = cfg
         num_taxels = from_dict(SkinLayout, skin).num_taxels
+        payload = load_perception_checkpoint(cfg.pretrained) if cfg.pretrained else None
+        if payload is not None:
+            # the checkpoint defines the architecture; the config only has to agree on the model kind
+            stored = from_dict(PerceptionModelConfig, payload["config"]["model"])
+            if stored.name != cfg.model.name:
+                raise ValueError(f"{cfg.pretrained}: a {stored.name} model, the config asks for {cfg.model.name}")
+            cfg = dataclasses.replace(cfg, model=stored)
+        self.cfg = cfg
         model_cfg = dataclasses.replace(cfg.model, num_taxels=num_taxels)
         self._rest = rest_positions_cm(skin) if model_cfg.name == "gcn" else None
         torch.manual_seed(seed)
         self.model = make_model(model_cfg, self._rest)
-        if cfg.pretrained:
-            payload = load_perception_checkpoint(cfg.pretrained)
-            stored = payload["config"]["model"]
-            if (stored["name"], stored["channels"], stored.get("joint_inputs", 0)) != \
-                    (model_cfg.name, model_cfg.channels, model_cfg.joint_inputs):
-                raise ValueError(f"{cfg.pretrained}: a {stored['name']}-{stored['channels']} model with "
-                                 f"{stored.get('joint_inputs', 0)} joint inputs, config asks for "
-                                 f"{model_cfg.name}-{model_cfg.channels} with {model_cfg.joint_inputs}")
+        if payload is not None:
             self.model.load_state_dict(payload["model"])
         self.optim = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.objective = Objective("baoding", cfg.match_balls)
