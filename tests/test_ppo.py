@@ -177,6 +177,24 @@ def test_evaluate_counts_quota_per_env(run2):
     assert 0.0 <= out["fall_rate"] <= 1.0
 
 
+def test_evaluate_on_another_hand(run2, tmp_path):
+    """Env changes at evaluation apply (a fall radius of 1 mm ends every episode as a fall at once)
+    and a bad key is named; the CLI writes all three tasks as JSON."""
+    from tacgnn.config import ConfigError
+    from tacgnn.learning.evaluate import main as evaluate_main
+
+    out = evaluate(run2 / "model_000002.pt", episodes=4, num_envs=2, env_overrides={"fall_radius": 0.001})
+    assert out["fall_rate"] == 1.0 and out["success_rate"] == 0.0
+    with pytest.raises(ConfigError, match="hand.stifness"):
+        evaluate(run2 / "model_000002.pt", episodes=2, num_envs=2, env_overrides={"hand.stifness": 2.0})
+    assert evaluate_main([str(run2 / "model_000002.pt"), "--episodes", "2", "--envs", "2", "--out",
+                          str(tmp_path / "r.json"), "--set", "hand.stiffness=2.5"]) == 0
+    import json
+    rows = json.loads((tmp_path / "r.json").read_text())
+    assert [r["task"] for r in rows] == ["simple", "middle", "hard"]
+    assert rows[0]["env_overrides"] == {"hand.stiffness": 2.5}
+
+
 def test_wilson_interval():
     lo, hi = wilson_interval(45, 50)  # p = 0.9
     assert lo == pytest.approx(0.7864, abs=1e-3) and hi == pytest.approx(0.9565, abs=1e-3)

@@ -16,10 +16,11 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 
+from tacgnn.config import override, parse_overrides
 from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.learning.ppo import load_perception, load_policy
 
@@ -43,11 +44,14 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float,
 
 def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] = "simple", episodes: int = 100,
              num_envs: int = 64, seed: int = 0,
-             perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> dict:
+             perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+             env_overrides: dict[str, Any] | None = None) -> dict:
     """Run the deterministic policy of `checkpoint` on `task` until `episodes` episodes ended.
 
     The env is the one the policy was trained in (obs mode, physics, randomisation) with
-    the task, number of envs and seed replaced. Returns success_rate, mean_steps_to_success
+    the task, number of envs and seed replaced, and `env_overrides` (dotted config keys,
+    e.g. ``{"hand.stiffness": 2.0, "randomization.enabled": False}``: another hand than the
+    one trained on) applied. Returns success_rate, mean_steps_to_success
     (NaN without successes), ci95 (Wilson) of the success rate, episodes, plus fall_rate
     and mean_final_angle_deg.
     """
@@ -59,7 +63,8 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
     if perception is None and env_cfg.obs_mode == "perceived":
         perception = load_perception(checkpoint)
     n = min(num_envs, episodes)
-    env = BaodingEnv(replace(env_cfg, task=task, num_envs=n, seed=seed), perception=perception)
+    env_cfg = override(replace(env_cfg, task=task, num_envs=n, seed=seed), env_overrides or {})
+    env = BaodingEnv(env_cfg, perception=perception)
     obs, _ = env.reset(seed=seed)
 
     quota = np.full(n, episodes // n)
@@ -96,10 +101,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="also write the results as JSON here")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="env config changes for the evaluation, e.g. hand.stiffness=2.0 ball_mass=0.25")
     args = parser.parse_args(argv)
     tasks = ("simple", "middle", "hard") if args.task == "all" else (args.task,)
-    results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed) for task in tasks]
-    print(f"{args.checkpoint}: {args.episodes} episodes per task, deterministic policy")
+    changes = parse_overrides(args.set)
+    results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed, env_overrides=changes)
+               for task in tasks]
+    for r in results:
+        r["env_overrides"] = changes
+    print(f"{args.checkpoint}: {args.episodes} episodes per task, deterministic policy"
+          + (f", env changed: {' '.join(args.set)}" if args.set else ""))
     print(f"{'task':8s} {'success':>8s} {'95% CI':>13s} {'steps':>6s} {'falls':>6s}")
     for r in results:
         lo, hi = r["ci95"]

@@ -1,0 +1,100 @@
+"""Learning curves of PPO runs (the paper's Fig. 4B/4C): training success rate against env steps.
+
+    .venv/bin/python experiments/policy_curves.py OUT.png LABEL=RUN_DIR [LABEL=RUN_DIR ...]
+        [--title T] [--smooth 25]
+
+Reads each run's TensorBoard scalars (`Episode/success_rate`, logged by rsl_rl every
+iteration from the episodes that ended in it) and the run's config for the env steps per
+iteration (num_envs x num_steps_per_env). Several event files in one run (a resumed run)
+are merged, later files winning. Also prints, per run, the env steps and wall-clock time
+at which the smoothed success rate first reached 50 % and 90 %, and its final value.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+
+def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(iterations, success rates, wall-clock seconds since the first event) of a run."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    points: dict[int, tuple[float, float]] = {}
+    files = sorted(run_dir.glob("events.out.tfevents.*"), key=lambda p: p.stat().st_mtime)
+    if not files:
+        raise FileNotFoundError(f"{run_dir}: no TensorBoard event files")
+    for f in files:
+        acc = EventAccumulator(str(f), size_guidance={"scalars": 0})
+        acc.Reload()
+        if "Episode/success_rate" in acc.Tags()["scalars"]:
+            for e in acc.Scalars("Episode/success_rate"):
+                points[e.step] = (e.value, e.wall_time)
+    steps = np.array(sorted(points))
+    values = np.array([points[s][0] for s in steps])
+    wall = np.array([points[s][1] for s in steps])
+    # resumed runs: count only time spent training, not the gaps between sessions
+    gaps = np.diff(wall, prepend=wall[0])
+    gaps[gaps > 60] = np.median(gaps[gaps <= 60]) if (gaps <= 60).any() else 0.0
+    return steps, values, np.cumsum(gaps)
+
+
+def steps_per_iteration(run_dir: Path) -> int:
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
+    return int(cfg["ppo"]["num_envs"]) * int(cfg["ppo"]["num_steps_per_env"])
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    if window <= 1 or len(values) < window:
+        return values
+    kernel = np.ones(window) / window
+    padded = np.concatenate([np.full(window - 1, values[0]), values])
+    return np.convolve(padded, kernel, mode="valid")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("out", type=Path)
+    parser.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
+    parser.add_argument("--title", default="Baoding training success")
+    parser.add_argument("--smooth", type=int, default=25, help="moving-average window (iterations)")
+    args = parser.parse_args()
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    print(f"{'run':22s} {'iters':>6s} {'50% at (M steps, min)':>22s} {'90% at (M steps, min)':>22s} {'final':>6s}")
+    for item in args.runs:
+        label, _, path = item.partition("=")
+        if not path:
+            raise SystemExit(f"expected LABEL=RUN_DIR, got {item!r}")
+        run = Path(path)
+        it, value, wall = success_curve(run)
+        env_steps = it * steps_per_iteration(run) / 1e6
+        s = smooth(value, args.smooth)
+        ax.plot(env_steps, 100 * s, label=label)
+        cells = []
+        for level in (0.5, 0.9):
+            hit = np.flatnonzero(s >= level)
+            cells.append(f"{env_steps[hit[0]]:8.2f} M, {wall[hit[0]] / 60:6.1f} min" if len(hit) else "never")
+        print(f"{label:22s} {it[-1]:6d} {cells[0]:>22s} {cells[1]:>22s} {100 * s[-1]:5.1f}%")
+    ax.set_xlabel("env steps (millions)")
+    ax.set_ylabel(f"training success rate (%), {args.smooth}-iteration mean")
+    ax.set_ylim(0, 100)
+    ax.set_title(args.title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.out, dpi=120)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
