@@ -1,0 +1,51 @@
+#!/usr/bin/env bash
+# The privileged route to a blind Baoding policy, trained for the Hard task (Table III).
+#
+#   experiments/table3.sh MODEL [SEED] [ITERATIONS] [PERCEPTION_SET]
+#
+#   MODEL           perception model: tacgnn, mlp, cnn or gcn (32 channels for TacGNN)
+#   ITERATIONS      PPO iterations of the blind fine-tuning (default 1200)
+#   PERCEPTION_SET  extra perception settings, e.g. "model.joint_inputs=16" (skin + joint angles)
+#
+# 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
+# 2. its rollouts as the perception dataset (50,000 frames, from the first step)
+# 3. the perception model trained on it offline (10 epochs, balls by identity)
+# 4. the policy fine-tuned with the perceived ball positions, perception trained in the loop
+#    (2 epochs on the newest 25,600 frames every 400 env steps)
+# 5. evaluation on Simple, Middle and Hard, 512 episodes each -> results/RUN_model_NNNNNN.json
+# Every step skips what already exists and resumes a run that was cut off (datasets resume by
+# themselves), so the script can be rerun after an interruption.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+MODEL=${1:?usage: experiments/table3.sh MODEL [SEED] [ITERATIONS] [PERCEPTION_SET]}
+SEED=${2:-0}
+ITERS=${3:-1200}
+PSET=${4:-}
+TAG=$MODEL$( [ -n "$PSET" ] && echo "_joints" || true )
+T=.venv/bin/tacgnn
+GT=runs/gt_hard_s$SEED
+resume() { [ -f "$1/config.yaml" ] && echo --resume || true; }
+last() { printf "%s/model_%06d.pt" "$1" "$2"; }
+
+if [ ! -f "$(last $GT 2000)" ]; then
+  $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hard --ppo max_iterations=2000 \
+    save_interval=100 init_from=runs/gt_s0/model_002500.pt init_noise_std=0.3 seed=$SEED
+fi
+DATA=data/baoding_gthard_s$SEED
+$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $SEED
+PERC=runs/perc/gthard_s${SEED}_$TAG
+if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
+  $T train-perception --task baoding --model $MODEL --dataset $DATA --run $PERC --epochs 10 --seed $SEED \
+    $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) --set match_balls=false $PSET
+fi
+RUN=runs/blind_${TAG}_hard_s$SEED
+if [ ! -f "$(last $RUN $ITERS)" ]; then
+  $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hard --ppo max_iterations=$ITERS \
+    save_interval=100 init_from="$(last $GT 2000)" init_noise_std=0.2 learning_rate=0.0003 schedule=fixed \
+    seed=$SEED --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt match_balls=false epochs=2 \
+    update_every_steps=400
+fi
+for ckpt in "$(last $GT 2000)" "$(last $RUN $ITERS)"; do
+  out=results/$(basename $(dirname $ckpt))_$(basename $ckpt .pt).json
+  [ -f $out ] || $T evaluate $ckpt --task all --episodes 512 --envs 128 --out $out
+done
