@@ -5,7 +5,8 @@ frame z runs along the fingers, +x is the palmar side (fingers flex towards +x) 
 +y is the thumb's side. Collision shapes are boxes and capsules (much faster than
 meshes). Joint 0 of each finger spreads it sideways (axis: palm normal), joints 1-3
 flex it. Each joint is driven by a position actuator with stiffness `stiffness`
-and joint damping `damping`, the two parameters system identification fits.
+and joint damping `damping`, the two parameters system identification fits (one
+value for all joints, or 16 per-joint values as `tacgnn sysid` writes them).
 
 The palm is fixed to the world, palm up: palm +x points to world +z, the fingers
 point along world +y, then the hand is tilted by `palm_tilt_deg` about world x
@@ -15,6 +16,8 @@ is the world origin.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import mujoco
@@ -59,10 +62,11 @@ OBJECT_CONTYPE, OBJECT_CONAFFINITY = 2, 3
 class HandConfig:
     """Physical parameters of the hand."""
 
-    stiffness: float = 3.0
-    """Position-actuator gain kp (N m/rad); the authors' system identification grid is {1, 3, 5}."""
-    damping: float = 0.1
-    """Joint damping (N m s/rad); identification grid {0, 0.1, 0.5}."""
+    stiffness: float | tuple[float, ...] = 3.0
+    """Position-actuator gain kp (N m/rad); the authors' system identification grid is {1, 3, 5}.
+    One value for every joint, or 16 per-joint values in JOINT_NAMES order."""
+    damping: float | tuple[float, ...] = 0.1
+    """Joint damping (N m s/rad); identification grid {0, 0.1, 0.5}. One value or 16."""
     armature: float = 0.001
     """Reflected motor inertia per joint (kg m^2); keeps the stiff joints stable at 5 ms steps."""
     joint_ranges: tuple[tuple[float, float], ...] = DEFAULT_RANGES
@@ -78,11 +82,22 @@ class HandConfig:
         check(len(self.joint_ranges) == 16, "hand.joint_ranges", f"needs 16 (low, high) pairs, got {len(self.joint_ranges)}")
         for name, (lo, hi) in zip(JOINT_NAMES, self.joint_ranges):
             check(lo < hi, "hand.joint_ranges", f"joint {name} has low {lo} >= high {hi}")
-        check(self.stiffness > 0, "hand.stiffness", f"must be positive, got {self.stiffness}")
-        check(self.damping >= 0, "hand.damping", f"must be >= 0, got {self.damping}")
+        _check_per_joint(self.stiffness, "hand.stiffness", lambda v: v > 0, "> 0")
+        _check_per_joint(self.damping, "hand.damping", lambda v: v >= 0, ">= 0")
+        for name in ("stiffness", "damping"):  # per-joint values as a tuple of floats (hashable, comparable)
+            if isinstance(getattr(self, name), (tuple, list)):
+                object.__setattr__(self, name, _per_joint(getattr(self, name)))
         check(self.armature >= 0, "hand.armature", f"must be >= 0, got {self.armature}")
         check(self.friction > 0, "hand.friction", f"must be positive, got {self.friction}")
         check(self.link_density > 0, "hand.link_density", f"must be positive, got {self.link_density}")
+
+    def joint_stiffness(self) -> tuple[float, ...]:
+        """The 16 actuator gains, whether configured as one value or per joint."""
+        return _per_joint(self.stiffness)
+
+    def joint_damping(self) -> tuple[float, ...]:
+        """The 16 joint dampings, whether configured as one value or per joint."""
+        return _per_joint(self.damping)
 
     def palm_quat(self) -> np.ndarray:
         """World orientation of the palm frame (w, x, y, z)."""
@@ -93,6 +108,25 @@ class HandConfig:
         quat = np.zeros(4)
         mujoco.mju_mat2Quat(quat, (tilt @ base).flatten())
         return quat
+
+
+def _per_joint(value: float | tuple[float, ...]) -> tuple[float, ...]:
+    return tuple(float(v) for v in value) if isinstance(value, (tuple, list)) else (float(value),) * len(JOINT_NAMES)
+
+
+def _valid_number(v, ok) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and ok(v)
+
+
+def _check_per_joint(value, key: str, ok, needs: str) -> None:
+    """A scalar, or exactly 16 values; each finite and `ok`."""
+    if isinstance(value, (tuple, list)):
+        check(len(value) == len(JOINT_NAMES), key, f"needs one value or {len(JOINT_NAMES)} per-joint values "
+              f"({', '.join(JOINT_NAMES[:2])}, ...), got {len(value)}")
+        for name, v in zip(JOINT_NAMES, value):
+            check(_valid_number(v, ok), key, f"joint {name}: must be a finite number {needs}, got {v!r}")
+    else:
+        check(_valid_number(value, ok), key, f"must be a finite number {needs}, got {value!r}")
 
 
 def _box(body: mujoco.MjsBody, half: tuple, pos: tuple, density: float, name: str) -> None:
@@ -112,8 +146,9 @@ def _tip(body: mujoco.MjsBody, half_len: float, z: float, name: str) -> None:
 
 
 def _joint(body: mujoco.MjsBody, name: str, axis: tuple, rng: tuple, cfg: HandConfig) -> None:
+    damping = cfg.joint_damping()[JOINT_NAMES.index(name)]
     body.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=list(axis), range=list(rng),
-                   limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=cfg.damping,
+                   limited=mujoco.mjtLimited.mjLIMITED_TRUE, damping=damping,
                    armature=cfg.armature)
 
 
@@ -148,9 +183,9 @@ def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
         _link_box(body, half_z, d, f"thumb_{link}_geom")
     _tip(body, 0.008, 0.035, "thumb_tip_geom")
 
-    for joint, actuator in zip(JOINT_NAMES, ACTUATOR_NAMES):
+    for joint, actuator, kp in zip(JOINT_NAMES, ACTUATOR_NAMES, cfg.joint_stiffness()):
         lo, hi = ranges[joint]
         act = spec.add_actuator(name=actuator, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        act.set_to_position(kp=cfg.stiffness)
+        act.set_to_position(kp=kp)
         act.ctrlrange = [lo, hi]
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE

@@ -1,0 +1,141 @@
+"""Real-hand control: taxel kinematics and the blind controller agree with the simulator; bad input is refused."""
+
+import importlib.util
+import sys
+from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics
+from tacgnn.real import ros
+
+torch.set_num_threads(1)
+ASSETS = Path(__file__).resolve().parents[1] / "src" / "tacgnn" / "assets"
+
+
+@pytest.fixture(scope="module")
+def controller():
+    return BlindController()
+
+
+@pytest.fixture(scope="module")
+def env_after_steps(controller):
+    """Envs of the policy's config, driven by the policy until the balls touch the skin."""
+    env = BaodingEnv(replace(controller.env_config, num_envs=3, seed=0), perception=controller.perception)
+    obs, _ = env.reset(seed=0)
+    for _ in range(15):
+        obs, *_ = env.step(controller.policy(obs))
+    env.sim.forward()  # poses, contacts and skin of the current state (the env keeps the last substep's)
+    return env
+
+
+def test_taxel_kinematics_equal_the_simulators_positions(controller):
+    env = BaodingEnv(replace(controller.env_config, num_envs=4, obs_mode="groundtruth", tactile=False))
+    kin = TaxelKinematics(env.config.hand, env.config.skin)
+    rng = np.random.default_rng(0)
+    qpos = env.sim.qpos.copy()
+    qpos[:, env.joint_qpos_adr] = rng.uniform(env.joint_low, env.joint_high, (4, 16))
+    env.sim.qpos[:] = qpos
+    env.sim.forward()
+    expected = env.taxel_positions()
+    for i in range(4):
+        np.testing.assert_array_equal(kin.positions(env.joint_pos[i]), expected[i])
+
+
+def test_targets_equal_the_env_driven_policys(controller, env_after_steps):
+    env = env_after_steps
+    ids = np.arange(env.num_envs)
+    skin = env.tactile_readings(noisy=False)
+    assert (skin > 0).sum(1).min() > 5  # the balls press the skin
+    obs = env._observe(ids, skin, env.taxel_positions())  # what the env shows the policy in this state
+    expected = env.action_to_ctrl(np.clip(controller.policy(obs), -1, 1))
+    for i in ids:
+        controller.last_action = env.last_action[i].copy()
+        np.testing.assert_allclose(controller.observation(env.joint_pos[i], env.joint_vel[i], skin[i]), obs[i],
+                                   atol=1e-6)
+        target = controller.step(env.joint_pos[i], env.joint_vel[i], skin[i])
+        np.testing.assert_allclose(target, expected[i], atol=1e-5)
+
+
+def test_reset_starts_like_the_env(controller):
+    env = BaodingEnv(replace(controller.env_config, num_envs=1, obs_mode="groundtruth", tactile=False))
+    env.reset(seed=3)
+    controller.reset(env.joint_pos[0])
+    np.testing.assert_allclose(controller.last_action, env.last_action[0], atol=1e-12)
+
+
+def test_bad_input_is_refused_with_clear_errors(controller):
+    q, qd, skin = np.full(16, 0.5), np.zeros(16), np.zeros(controller.num_taxels)
+    controller.reset(q)
+    bad = q.copy()
+    bad[13] = np.nan
+    with pytest.raises(ValueError, match=r"joint_pos holds non-finite.*thumb_j1"):
+        controller.step(bad, qd, skin)
+    with pytest.raises(ValueError, match=r"joint_vel must have shape \(16,\), got \(15,\)"):
+        controller.step(q, qd[:15], skin)
+    with pytest.raises(ValueError, match=r"skin must have shape \(653,\), got \(2, 653\)"):
+        controller.step(q, qd, np.zeros((2, 653)))
+    with pytest.raises(ValueError, match="skin readings must be >= 0"):
+        controller.step(q, qd, skin - 1.0)
+
+
+def test_targets_are_clamped_to_the_joint_ranges(controller, monkeypatch):
+    controller.reset(np.full(16, 0.5))
+    monkeypatch.setattr(controller, "policy", lambda obs: np.full((1, 16), 7.0, np.float32))
+    target = controller.step(np.full(16, 0.5), np.zeros(16), np.zeros(controller.num_taxels))
+    np.testing.assert_array_equal(target, controller.joint_high)
+    assert np.all(controller.last_action == 1.0)
+
+
+def test_safety_step_limit_keeps_targets_near_the_pose(controller, monkeypatch):
+    monkeypatch.setattr(controller, "config", BlindControllerConfig(max_step_rad=0.05))
+    monkeypatch.setattr(controller, "policy", lambda obs: np.full((1, 16), 1.0, np.float32))
+    q = np.clip(np.full(16, 0.5), controller.joint_low, controller.joint_high)
+    target = controller.step(q, np.zeros(16), np.zeros(controller.num_taxels))
+    np.testing.assert_allclose(target, np.minimum(q + 0.05, controller.joint_high))
+
+
+def test_a_policy_that_needs_ball_positions_is_refused():
+    with pytest.raises(ValueError, match="observes 'groundtruth'"):
+        BlindController(BlindControllerConfig(policy=str(ASSETS / "baoding_gt_policy.pt")))
+
+
+def test_ros_adapter_imports_without_ros_and_explains_what_is_missing():
+    assert "rospy" not in sys.modules and "rclpy" not in sys.modules
+    if importlib.util.find_spec("rospy") is None:
+        with pytest.raises(ImportError, match="source your ROS 1 setup"):
+            ros._Node(ros.RosConfig())
+
+
+def test_control_tick_reorders_joints_and_stops_on_stale_data(controller):
+    names = list(ros.ALLEGRO_JOINT_NAMES)
+    perm = np.random.default_rng(0).permutation(16)
+    q = np.clip(np.linspace(0.1, 0.9, 16), controller.joint_low, controller.joint_high)
+    state = SimpleNamespace(name=[names[i] for i in perm], position=list(q[perm]), velocity=list(0.1 * q[perm]))
+    pos, vel = ros.decode_joint_state(state)
+    np.testing.assert_array_equal(pos, q)
+
+    class Identity:  # a calibrated skin processor stand-in
+        def __call__(self, patches):
+            return np.concatenate([patches[p.name] for p in controller.env_config.skin.patches]).astype(np.float32)
+
+    cfg = ros.RosConfig()
+    fields = dict(cfg.tactile_fields)
+    skin_msg = SimpleNamespace(**{fields[p.name]: [0.0] * p.size for p in controller.env_config.skin.patches})
+    tick = ros.ControlTick(cfg, controller, Identity())
+    assert tick() is None  # nothing received yet
+    tick.joints(state)
+    tick.skin(skin_msg)
+    controller.reset(q)
+    target = tick()
+    controller.reset(q)
+    np.testing.assert_array_equal(target, controller.step(q, 0.1 * q, np.zeros(controller.num_taxels)))
+    tick.skin.stamp -= 1.0  # a skin frame a second old
+    assert tick() is None
+    with pytest.raises(ValueError, match="has no field 'palm_Value'"):
+        ros.decode_tactile(SimpleNamespace(), cfg.tactile_fields)
