@@ -8,8 +8,9 @@
 #   PERCEPTION_SET  extra perception settings, e.g. "model.joint_inputs=16" (skin + joint angles)
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
-# 2. its rollouts as the perception dataset (50,000 frames, from the first step)
-# 3. the perception model trained on it offline (10 epochs, balls by identity)
+# 2. its rollouts on the Hard task as the perception dataset (50,000 frames, from the first step)
+# 3. the perception model trained on it offline (10 epochs; the loss does not care which ball is
+#    which: the env keeps the identities by tracking, see BaodingConfig.track_balls)
 # 4. the policy fine-tuned with the perceived ball positions, perception trained in the loop
 #    (2 epochs on the newest 25,600 frames every 400 env steps)
 # 5. evaluation on Simple, Middle and Hard, 512 episodes each -> results/RUN_model_NNNNNN.json
@@ -31,18 +32,19 @@ if [ ! -f "$(last $GT 2000)" ]; then
   $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hard --ppo max_iterations=2000 \
     save_interval=100 init_from=runs/gt_s0/model_002500.pt init_noise_std=0.3 seed=$SEED
 fi
-DATA=data/baoding_gthard_s$SEED
-$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $SEED
-PERC=runs/perc/gthard_s${SEED}_$TAG
+DATA=data/baoding_gthard_hardtask_s$SEED
+$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $SEED \
+  --set task=hard
+PERC=runs/perc/gthardtask_s${SEED}_$TAG
 if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
   $T train-perception --task baoding --model $MODEL --dataset $DATA --run $PERC --epochs 10 --seed $SEED \
-    $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) --set match_balls=false $PSET
+    $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) $( [ -n "$PSET" ] && echo --set $PSET || true )
 fi
 RUN=runs/blind_${TAG}_hard_s$SEED
 if [ ! -f "$(last $RUN $ITERS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hard --ppo max_iterations=$ITERS \
     save_interval=100 init_from="$(last $GT 2000)" init_noise_std=0.2 learning_rate=0.0003 schedule=fixed \
-    seed=$SEED --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt match_balls=false epochs=2 \
+    seed=$SEED --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt epochs=2 \
     update_every_steps=400
 fi
 for ckpt in "$(last $GT 2000)" "$(last $RUN $ITERS)"; do

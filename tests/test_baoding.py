@@ -230,3 +230,38 @@ def test_domain_randomisation_draws_per_env_physics_in_range():
     gravity = -env.sim.batch.expanded("opt.gravity")[:, 2]
     assert np.all((0.1 <= mass) & (mass <= 0.2)) and np.unique(mass).size == mass.size
     assert np.all((7 <= gravity) & (gravity <= 12)) and np.unique(gravity).size == 8
+
+
+def test_track_ball_identities_known_answer():
+    from tacgnn.envs.baoding import track_ball_identities
+
+    prev = np.array([[0.0, 0, 0, 5, 0, 0], [0.0, 0, 0, 5, 0, 0]])
+    pred = np.array([[5.1, 0, 0, 0.1, 0, 0],   # swapped: each ball near the other's last place
+                     [0.2, 0, 0, 4.9, 0, 0]])  # in order
+    out = track_ball_identities(pred, prev)
+    np.testing.assert_allclose(out, [[0.1, 0, 0, 5.1, 0, 0], [0.2, 0, 0, 4.9, 0, 0]])
+
+
+@pytest.mark.parametrize("track", [True, False])
+def test_perceived_balls_keep_their_identity(track):
+    """A perception that knows where the balls are but not which is which (it returns them in a
+    random order each step): with tracking the policy still sees ball 0 as ball 0 throughout."""
+    rng = np.random.default_rng(0)
+    env = BaodingEnv(BaodingConfig(num_envs=8, obs_mode="perceived", track_balls=track))
+
+    def unordered(tactile, taxel_pos):
+        truth = env.ball_positions().reshape(-1, 6)
+        flip = rng.random(len(truth)) < 0.5
+        return np.where(flip[:, None], truth[:, [3, 4, 5, 0, 1, 2]], truth)
+
+    env.perception = unordered
+    obs, _ = env.reset(seed=0)
+    wrong = []
+    for _ in range(30):
+        wrong.append(np.abs(obs[:, 32:38] - env.ball_positions().reshape(-1, 6)).max(1) > 1e-6)
+        obs, *_ = env.step(np.tile(env.last_action[:1], (8, 1)))
+    wrong = np.array(wrong)
+    if track:
+        assert not wrong.any()
+    else:
+        assert wrong.mean() > 0.3  # without tracking the order is a coin flip

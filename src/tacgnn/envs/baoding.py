@@ -112,6 +112,11 @@ class BaodingConfig:
     """... or its distance from the palm centre along the palm exceeds this (m)."""
     tactile: bool = True
     """Compute the skin every step (needed by 'tactile' and 'perceived' observations)."""
+    track_balls: bool = True
+    """'perceived': give the two predicted balls the identities that keep each nearest to where
+    it was perceived one step before (starting from the spawn positions at reset). The balls
+    look alike, so a skin model can only say where two balls are, not which is which; the
+    policy, trained on ground truth, expects ball 0 to stay ball 0 while they swap places."""
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -170,6 +175,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.vec_angle = np.zeros(n)  # last wrapped angle of the ball-to-ball vector
         self.hold_count = np.full(n, -1, np.int64)  # >= 0 while holding after reaching the angle
         self.last_action = np.zeros((n, NUM_JOINTS))
+        self.perceived_balls = np.zeros((n, 6))  # last perceived positions, identities tracked
         self._rng = np.random.default_rng(cfg.seed)
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
@@ -210,8 +216,14 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
             if getattr(self.perception, "joint_inputs", 0):  # a model that reads the hand's pose too
                 joints = self.sim.qpos[np.ix_(ids, self.joint_qpos_adr)]
-                return np.asarray(self.perception(tactile, taxel_pos, joints), dtype=np.float64).reshape(len(ids), 6)
-            return np.asarray(self.perception(tactile, taxel_pos), dtype=np.float64).reshape(len(ids), 6)
+                pred = self.perception(tactile, taxel_pos, joints)
+            else:
+                pred = self.perception(tactile, taxel_pos)
+            pred = np.asarray(pred, dtype=np.float64).reshape(len(ids), 6)
+            if self.config.track_balls:
+                pred = track_ball_identities(pred, self.perceived_balls[ids])
+            self.perceived_balls[ids] = pred
+            return pred
         raise AssertionError(mode)
 
     def _observe(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
@@ -273,6 +285,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.angle[ids] = 0.0
         self.vec_angle[ids] = self._ball_vector_angle(ids)
         self.hold_count[ids] = -1
+        self.perceived_balls[ids] = np.concatenate(cfg.spawn_offsets)  # where the balls are put
 
     # --- step --------------------------------------------------------------------------
     def step(self, actions: np.ndarray):
@@ -435,6 +448,17 @@ def _assign_obs(obs, ids, new) -> None:
             obs[k][ids] = new[k]
     else:
         obs[ids] = new
+
+
+def track_ball_identities(pred: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """(N, 6) predicted ball pairs, swapped where that puts each ball nearer its previous position.
+
+    At 50 Hz a ball moves a few millimetres per step while the two are 5 cm apart, so the
+    nearer assignment keeps each ball's identity through a whole rotation.
+    """
+    swapped = pred[:, [3, 4, 5, 0, 1, 2]]
+    swap = ((swapped - previous) ** 2).sum(1) < ((pred - previous) ** 2).sum(1)
+    return np.where(swap[:, None], swapped, pred)
 
 
 def randomize(env: BaodingEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
