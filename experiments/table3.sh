@@ -6,6 +6,8 @@
 #   MODEL           perception model: tacgnn, mlp, cnn or gcn (32 channels for TacGNN)
 #   ITERATIONS      PPO iterations of the blind fine-tuning (default 1200)
 #   PERCEPTION_SET  extra perception settings, e.g. "model.joint_inputs=16" (skin + joint angles)
+#   GT_SEED=k       (environment) take the ground-truth policy and dataset of seed k (default: SEED),
+#                   so that seeds of the blind stage share one ground-truth policy
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
 # 2. its rollouts on the Hard task as the perception dataset (50,000 frames, from the first step)
@@ -24,16 +26,17 @@ ITERS=${3:-1200}
 PSET=${4:-}
 TAG=$MODEL$( [ -n "$PSET" ] && echo "_joints" || true )
 T=.venv/bin/tacgnn
-GT=runs/gt_hard_s$SEED
+GT_SEED=${GT_SEED:-$SEED}
+GT=runs/gt_hard_s$GT_SEED
 resume() { [ -f "$1/config.yaml" ] && echo --resume || true; }
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
 
 if [ ! -f "$(last $GT 2000)" ]; then
   $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hard --ppo max_iterations=2000 \
-    save_interval=100 init_from=runs/gt_s0/model_002500.pt init_noise_std=0.3 seed=$SEED
+    save_interval=100 init_from=runs/gt_s0/model_002500.pt init_noise_std=0.3 seed=$GT_SEED
 fi
-DATA=data/baoding_gthard_hardtask_s$SEED
-$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $SEED \
+DATA=data/baoding_gthard_hardtask_s$GT_SEED
+$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED \
   --set task=hard
 PERC=runs/perc/gthardtask_s${SEED}_$TAG
 if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
