@@ -4,7 +4,9 @@ Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200]
 Prints one table; docs/results.md quotes it. Targets (issue 2): env >= 80 % of the raw
 physics rate, >= 5,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
 "env/physics" is the share of an env step spent in MuJoCo (the physics rate the env
-keeps); "raw replay" steps the same batch with the same controls and nothing else.
+keeps); "raw replay" steps the same batch with the same controls and nothing else. The
+skin (readings with noise, positions) is timed on the env run's last state, the one whose
+contacts and active taxels the table reports.
 """
 
 from __future__ import annotations
@@ -49,8 +51,10 @@ def bench(num_envs: int, steps: int, nthread: int) -> dict:
     it = iter(actions)
     env_time = timed(lambda: env.step(next(it)), steps)
     env.sim.step = sim_step
-    contacts = (env.sim.sensordata[:, env.tactile._force_idx] > 0).sum((1, 2)).mean()
+    contacts = (env.tactile.contacts(env.sim.sensordata)[0] > 0).sum((1, 2)).mean()
     active = (env.tactile_readings() > 0).sum(1).mean()
+    readings_time = timed(env.tactile_readings, steps)
+    positions_time = timed(env.taxel_positions, steps)
 
     # raw physics alone, replaying the same controls (no resets: balls may leave the hand)
     sim = env.sim
@@ -61,8 +65,6 @@ def bench(num_envs: int, steps: int, nthread: int) -> dict:
         sim_step(env.substeps)
 
     raw_time = timed(raw_step, steps)
-    readings_time = timed(env.tactile_readings, steps)
-    positions_time = timed(env.taxel_positions, steps)
     n = num_envs * steps
     return {
         "envs": num_envs, "threads": nthread,

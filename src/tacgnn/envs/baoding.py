@@ -238,8 +238,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def _skin(self, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Readings of envs `ids`, and taxel positions if the observation needs them.
 
-        Positions cost as much as readings, so other modes get them on demand from
-        `taxel_positions()` (same instant, until the next step).
+        Other modes get positions on demand from `taxel_positions()` (same instant,
+        until the next step), so a ground-truth run does not pay for them.
         """
         if not self.config.tactile:
             return None, None

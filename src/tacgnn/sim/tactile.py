@@ -17,8 +17,11 @@ half off the skin loses the part that falls off. Readings of several contacts ad
 values below the threshold read 0; then multiplicative Gaussian noise.
 
 The contacts come from one MuJoCo ``contact`` sensor per patch (the K strongest
-contacts of the patch's link, computed in C by the engine), so the per-step cost in
-Python is a handful of vectorised numpy calls for the whole batch.
+contacts of the patch's link, computed in C by the engine). In Python, the cost per
+step is a fixed number of vectorised numpy calls for the whole batch, and the work
+per contact is proportional to the taxels its disc can reach, not to its patch's size:
+a lookup grid around each patch (`_CandidateGrid`) lists, for any contact, the few
+taxels that can lie within its radius.
 """
 
 from __future__ import annotations
@@ -51,6 +54,82 @@ def add_skin_sensors(spec: mujoco.MjSpec, layout: SkinLayout, contacts_per_patch
         sensor.intprm = [bits, _REDUCE_MAXFORCE, contacts_per_patch]
 
 
+# The candidate grid: cells one pitch wide, reaching two pitches beyond the taxels so that
+# contacts a little off the skin still have a cell centre nearby; radii in quarter pitches.
+_CELL_PITCHES = 1.0
+_MARGIN_PITCHES = 2.0
+_BIN_PITCHES = 0.25
+# Envs per GEMM in `TactileModel.positions`: OpenBLAS runs GEMMs this small on one thread;
+# on larger ones it starts threads, which made positions 30x slower with the cores busy.
+_GEMM_ROWS = 64
+
+
+class _CandidateGrid:
+    """The taxels a contact can press, looked up from where it is in its link's frame.
+
+    Around each patch lies a grid of cells in the link frame. Each cell lists the patch's
+    taxels by distance from its centre, and counts those closer than each multiple of a
+    bin width. A contact at distance s from its cell's centre can only press taxels within
+    a + s of that centre (triangle inequality), so the first count(a + s) taxels of the
+    list hold all it presses: exact for any force, and for any contact point (one outside
+    the grid takes the nearest cell, with a larger s). The lists take cells x taxels per
+    patch: 1.3 MB for the default skin.
+    """
+
+    def __init__(self, layout: SkinLayout):
+        local = [p.local_positions()[0] for p in layout.patches]
+        origin, cell_size, stride, last, first_cell = [], [], [], [], []
+        order, counts, list_start = [], [], []
+        num_cells = num_listed = 0
+        for patch, x, first_taxel in zip(layout.patches, local, layout.offsets()):
+            size, margin, bin_size = (k * patch.pitch for k in (_CELL_PITCHES, _MARGIN_PITCHES, _BIN_PITCHES))
+            lo = x.min(0) - margin
+            dims = np.ceil((x.max(0) + margin - lo) / size).astype(int) + 1
+            cells = np.stack(np.meshgrid(*map(np.arange, dims), indexing="ij"), -1).reshape(-1, 3)
+            dist = np.linalg.norm((lo + size * cells)[:, None] - x, axis=-1)  # (cells, taxels)
+            order.append(first_taxel + np.argsort(dist, axis=1, kind="stable").ravel())
+            # counts[c, k]: taxels closer than k bins to cell c's centre
+            first_bin = (dist / bin_size).astype(int) + 1  # the first k that counts the taxel
+            num_bins = first_bin.max() + 1
+            per_bin = np.bincount((num_bins * np.arange(len(cells))[:, None] + first_bin).ravel(),
+                                  minlength=len(cells) * num_bins)
+            counts.append(per_bin.reshape(len(cells), num_bins).cumsum(axis=1))
+            list_start.append(num_listed + patch.size * np.arange(len(cells)))
+            origin.append(lo)
+            cell_size.append(size)
+            stride.append([dims[1] * dims[2], dims[2], 1])
+            last.append(dims - 1)
+            first_cell.append(num_cells)
+            num_cells += len(cells)
+            num_listed += len(cells) * patch.size
+        small = np.min_scalar_type(layout.num_taxels)
+        self.order = np.concatenate(order).astype(small)  # taxel indices in the skin vector
+        # (cells * bins,); past a patch's last bin the count stays at the patch size
+        self.num_bins = max(c.shape[1] for c in counts)
+        padded = [np.pad(c, ((0, 0), (0, self.num_bins - c.shape[1])), mode="edge") for c in counts]
+        self.counts = np.concatenate(padded).astype(small).ravel()
+        self.list_start = np.concatenate(list_start)
+        self.origin, self.cell_size = np.array(origin), np.array(cell_size)
+        self.first_cell = np.array(first_cell)
+        self.stride, self.last = np.array(stride, float), np.array(last, float)  # used with float cells
+
+    def lookup(self, patch: np.ndarray, local: np.ndarray,
+               radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where each contact's candidates start in `order`, and how many there are.
+
+        Args: the contacts' patch indices (M,), points in the link frame (M, 3), radii (M,).
+        """
+        size = self.cell_size[patch]
+        x = (local - np.take(self.origin, patch, axis=0)) / size[:, None]  # in cells
+        q = np.clip(np.rint(x), 0, np.take(self.last, patch, axis=0))  # the nearest cell of the grid
+        x -= q
+        cell = np.einsum("mi,mi->m", q, np.take(self.stride, patch, axis=0)).astype(np.intp)
+        cell += self.first_cell[patch]
+        reach = radius / size + np.sqrt(np.einsum("mi,mi->m", x, x))  # in cells
+        bins = np.minimum(np.ceil(reach * (_CELL_PITCHES / _BIN_PITCHES)).astype(np.intp), self.num_bins - 1)
+        return self.list_start[cell], np.take(self.counts, cell * self.num_bins + bins).astype(np.intp)
+
+
 class TactileModel:
     """Turns link poses and contact sensor data of N envs into taxel readings and positions.
 
@@ -78,74 +157,104 @@ class TactileModel:
         self.local_positions = np.concatenate(local).astype(np.float32)  # (T, 3) link frames
         self.local_normals = np.concatenate(normals).astype(np.float32)
         self.patch_of_taxel = layout.patch_index()
+        self._taxel_xyz = self.local_positions.T.copy()  # (3, T): one contiguous row per axis
         self._radius = np.array([p.contact_radius for p in patches])
-        self._inv_pitch2 = np.array([1.0 / p.pitch**2 for p in patches])
-        # Patches of equal size are processed together (fewer numpy calls, no padding):
-        # per group, the patch indices, their taxels' link-frame positions (G, T_g, 3),
-        # and each taxel's index in the skin vector (G, T_g).
-        offsets = layout.offsets()
-        self._groups = []
-        for size in sorted({p.size for p in patches}):
-            members = np.array([i for i, p in enumerate(patches) if p.size == size])
-            table = np.stack([np.concatenate(local)[offsets[i]:offsets[i + 1]] for i in members]).astype(np.float32)
-            index = np.stack([np.arange(offsets[i], offsets[i + 1]) for i in members])
-            self._groups.append((members, table, np.sum(table**2, axis=-1), index))
+        self._half_e_over_a2 = np.array([np.pi / (3.0 * p.pitch**2) for p in patches])  # 0.5 E / a^2
+        self._grid = _CandidateGrid(layout)
         # gather indices of all slots' (normal force, position) in the sensordata row
         slot = np.arange(self.contacts_per_patch) * SLOT_SIZE
         base = self.sensor_adr[:, None] + slot[None, :]  # (P, K)
         self._force_idx = base + 1
         self._pos_idx = base[..., None] + 4 + np.arange(3)
+        self._patch_of_slot = np.repeat(np.arange(len(patches)), self.contacts_per_patch)
+        # positions: per patch, its columns of the (N, 3T) output and the (12, 3 n_p) matrix
+        # that maps a link pose [R (row-major) | x] to its taxels' world coordinates
+        offsets = layout.offsets()
+        self._pose_maps = [
+            (slice(3 * offsets[p], 3 * offsets[p + 1]),
+             np.vstack([np.einsum("ik,tj->ijtk", np.eye(3), x).reshape(9, -1),
+                        np.tile(np.eye(3), len(x))]).astype(np.float32))
+            for p, x in enumerate(local)
+        ]
 
     def contacts(self, sensordata: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Normal forces (N, P, K) and world contact points (N, P, K, 3) from sensordata."""
         return sensordata[:, self._force_idx], sensordata[:, self._pos_idx]
 
     def positions(self, xpos: np.ndarray, xmat: np.ndarray) -> np.ndarray:
-        """World positions (N, T, 3) of all taxels: x_link + R_link p_local."""
+        """World positions (N, T, 3) of all taxels: x_link + R_link p_local.
+
+        One small GEMM per patch and block of envs, [R | x] (n, 12) @ (12, 3 n_p), written
+        straight into the output.
+        """
         n = xpos.shape[0]
-        out = np.empty((n, self.num_taxels, 3), np.float32)
-        offsets = self.layout.offsets()
-        for p, body in enumerate(self.body_ids):
-            # One small GEMM per patch for all envs: (n_p, 3) @ (3, N*3), R^T stacked by env.
-            rot_t = xmat[:, body].reshape(n, 3, 3).transpose(2, 0, 1).reshape(3, 3 * n)
-            local = self.local_positions[offsets[p]:offsets[p + 1]]
-            world = (local @ rot_t.astype(np.float32)).reshape(-1, n, 3).transpose(1, 0, 2)
-            out[:, offsets[p]:offsets[p + 1]] = world + xpos[:, None, body]
-        return out
+        pose = np.concatenate([np.take(xmat, self.body_ids, axis=1), np.take(xpos, self.body_ids, axis=1)],
+                              axis=2).astype(np.float32)  # (N, P, 12)
+        out = np.empty((n, 3 * self.num_taxels), np.float32)
+        for start in range(0, n, _GEMM_ROWS):
+            envs = slice(start, start + _GEMM_ROWS)
+            for p, (columns, pose_map) in enumerate(self._pose_maps):
+                np.matmul(pose[envs, p], pose_map, out=out[envs, columns])
+        return out.reshape(n, self.num_taxels, 3)
 
     def readings(self, sensordata: np.ndarray, xpos: np.ndarray, xmat: np.ndarray,
                  rng: np.random.Generator | None = None) -> np.ndarray:
         """Taxel readings (N, T): each contact's normal force spread over its patch."""
         n = sensordata.shape[0]
-        force, point = self.contacts(sensordata)
         out = np.zeros(n * self.num_taxels, np.float32)
-        for members, table, sq_norm, index in self._groups:
-            env, member, slot = np.nonzero(force[:, members] > 0)
-            if len(env) == 0:
-                continue
-            patch = members[member]
-            body = self.body_ids[patch]
-            f = force[env, patch, slot]
-            rot = xmat[env, body].reshape(-1, 3, 3)
-            # contact point in the link frame: R^T (c - x)
-            local = np.einsum("mji,mj->mi", rot, point[env, patch, slot] - xpos[env, body]).astype(np.float32)
-            # w = sqrt(max(0, 1 - d^2/a^2)), d^2 = |l|^2 - 2 l.c + |c|^2, computed in place
-            a2 = ((self._radius[patch] * np.cbrt(f)) ** 2).astype(np.float32)
-            w = (table[member] @ local[:, :, None])[..., 0]  # batched matmul: faster than einsum here
-            w *= 2.0
-            w -= sq_norm[member]
-            w -= np.sum(local * local, axis=1)[:, None]
-            w /= a2[:, None]
-            w += 1.0
-            np.maximum(w, 0.0, out=w)
-            np.sqrt(w, out=w)
-            expected = (2.0 * np.pi / 3.0) * a2 * self._inv_pitch2[patch]
-            w *= (f / np.maximum(w.sum(axis=1), 0.5 * expected)).astype(np.float32)[:, None]
-            np.add.at(out, (index[member] + (env * self.num_taxels)[:, None]).ravel(), w.ravel())
-        out = out.reshape(n, self.num_taxels)
-        out[out < self.layout.threshold] = 0.0
-        if rng is not None and self.layout.noise > 0:
+        self._press(out, sensordata, xpos, xmat)
+        if self.layout.threshold > 0:
+            active = out >= self.layout.threshold
+            out *= active  # readings below the threshold read 0
+        else:
             active = out > 0
-            out[active] *= 1.0 + self.layout.noise * rng.standard_normal(active.sum()).astype(np.float32)
-            np.maximum(out, 0.0, out=out)
-        return out
+        if rng is not None and self.layout.noise > 0:
+            # the active readings in (env, taxel) order, as out[active] would give them
+            index = np.flatnonzero(active)
+            values = np.take(out, index)
+            values *= 1.0 + self.layout.noise * rng.standard_normal(len(index)).astype(np.float32)
+            np.maximum(values, 0.0, out=values)
+            out[index] = values
+        return out.reshape(n, self.num_taxels)
+
+    def _press(self, out: np.ndarray, sensordata: np.ndarray, xpos: np.ndarray, xmat: np.ndarray) -> None:
+        """Add the readings of all contacts to `out` (N * T,), one entry per (contact, candidate taxel)."""
+        force_idx = self._force_idx.ravel()
+        force = np.take(sensordata, force_idx, axis=1)  # (N, P * K)
+        hit = np.flatnonzero(force > 0)
+        if len(hit) == 0:
+            return
+        env, slot = np.divmod(hit, len(force_idx))
+        patch = self._patch_of_slot[slot]
+        f = np.take(force, hit)
+        link = env * xpos.shape[1] + self.body_ids[patch]
+        rot = np.take(xmat.reshape(-1, 9), link, axis=0).reshape(-1, 3, 3)
+        point = np.take(sensordata, (env * sensordata.shape[1] + force_idx[slot] + 3)[:, None] + np.arange(3))
+        # contact point in the link frame: R^T (c - x)
+        local = np.einsum("mji,mj->mi", rot, point - np.take(xpos.reshape(-1, 3), link, axis=0))
+        radius = self._radius[patch] * np.cbrt(f)
+        first, count = self._grid.lookup(patch, local, radius)
+        total = int(count.sum())
+        if total == 0:
+            return
+        start = np.cumsum(count) - count
+        index = np.repeat(first - start, count)
+        index += np.arange(total)
+        taxel = np.take(self._grid.order, index).astype(np.intp)
+        # u = sqrt(max(0, a^2 - d^2)) = a w per (contact, candidate); the 1/a cancels below
+        local = local.astype(np.float32)
+        a2 = radius * radius
+        u = np.repeat(a2.astype(np.float32), count)
+        for axis in range(3):
+            diff = np.take(self._taxel_xyz[axis], taxel)
+            diff -= np.repeat(local[:, axis], count)
+            diff *= diff
+            u -= diff
+        np.maximum(u, 0.0, out=u)
+        np.sqrt(u, out=u)
+        # f_i = F u_i / max(sum u, 0.5 E a); a contact without candidates gets a stray sum
+        # here, but has no entries to scale
+        total_u = np.add.reduceat(u, np.minimum(start, total - 1))
+        scale = f / np.maximum(total_u, self._half_e_over_a2[patch] * a2 * radius)
+        u *= np.repeat(scale.astype(np.float32), count)
+        np.add.at(out, np.repeat(env * self.num_taxels, count) + taxel, u)
