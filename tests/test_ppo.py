@@ -133,6 +133,29 @@ def test_resume_continues_bit_for_bit(run2, tmp_path):
     assert torch.equal(a["env_state"]["sim_state"], b["env_state"]["sim_state"])
 
 
+def test_privileged_critic_reads_true_balls_and_resumes_exactly(tmp_path):
+    """The actor sees noisy ball positions, the critic the true ones; a resumed run matches."""
+    env_cfg = replace(ENV, obs_mode="noise_10")
+    env = RslBaodingEnv(env_cfg, privileged_critic=True)
+    obs = env.step(torch.zeros(env.num_envs, 16))[0]
+    truth = env.env.ball_positions().reshape(-1, 6)
+    np.testing.assert_allclose(obs["critic"][:, 32:38].numpy(), truth, atol=1e-6)
+    assert np.abs(obs["policy"][:, 32:38].numpy() - truth).max() > 1e-3
+    torch.testing.assert_close(obs["critic"][:, :32], obs["policy"][:, :32])  # same proprioception
+    cfg = lambda n: replace(ppo(n), privileged_critic=True, save_interval=2)  # noqa: E731
+    train(env_cfg, cfg(4), tmp_path / "straight")
+    train(env_cfg, cfg(2), tmp_path / "resumed")
+    train(env_cfg, cfg(4), tmp_path / "resumed", resume=True)
+    a, b = load_checkpoint(tmp_path / "straight" / "model_000004.pt"), load_checkpoint(
+        tmp_path / "resumed" / "model_000004.pt")
+    for key in ("actor_state_dict", "critic_state_dict"):
+        for name, tensor in a[key].items():
+            assert torch.equal(tensor, b[key][name]), f"{key}.{name}"
+    # the blind actor acts from the policy observation alone
+    policy, _ = load_policy(tmp_path / "straight" / "model_000004.pt")
+    assert policy(obs["policy"].numpy()).shape == (env.num_envs, 16)
+
+
 # --- (d), (e) bad checkpoints ----------------------------------------------------------
 def test_resume_with_another_obs_mode_names_it(run2, tmp_path):
     shutil.copytree(run2, tmp_path / "run")

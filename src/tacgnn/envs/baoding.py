@@ -235,6 +235,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         obj = self._object_obs(ids, tactile, taxel_pos)
         return np.concatenate([proprio, obj, self.last_action[ids]], axis=1).astype(np.float32)
 
+    def groundtruth_obs(self) -> np.ndarray:
+        """(N, 54) the 'groundtruth' observation of the current state, whatever the obs mode:
+        what a privileged critic reads during training (the actor gets the env's own obs)."""
+        proprio = np.concatenate([self.ctrl_to_action(self.joint_pos), 0.2 * self.joint_vel], axis=1)
+        balls = self.ball_positions().reshape(self.num_envs, 6)
+        return np.concatenate([proprio, balls, self.last_action], axis=1).astype(np.float32)
+
     def _skin(self, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Readings of envs `ids`, and taxel positions if the observation needs them.
 

@@ -110,6 +110,11 @@ class PPOConfig:
     init_from: str = ""
     """A checkpoint whose actor and critic (with their normalisers) start this run, e.g. a
     ground-truth policy to fine-tune with perceived ball positions; '' = random init."""
+    privileged_critic: bool = False
+    """The critic reads the ground-truth observation (true ball positions) while the actor reads
+    the env's own (perceived, noisy or none); only training uses the critic, so the policy stays
+    blind. Off by default, as in the paper; it keeps the value estimates sound when a
+    ground-truth policy is fine-tuned on perceived positions."""
     torch_threads: int = 1
     """CPU threads for torch; 1 leaves the other core to the physics."""
     log_dir: str = "runs"
@@ -151,7 +156,7 @@ class PPOConfig:
             "run_name": self.experiment_name,
             "num_steps_per_env": self.num_steps_per_env,
             "save_interval": self.save_interval,
-            "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
+            "obs_groups": {"actor": ["policy"], "critic": ["critic" if self.privileged_critic else "policy"]},
             "logger": "tensorboard",
             "check_for_nan": True,
             "algorithm": {
@@ -289,7 +294,8 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None = Non
                           f"(obs_mode={env_cfg.obs_mode!r}, perception config {'given' if perception_cfg else 'missing'})")
     seed_everything(ppo_cfg.seed)
     perception = None if perception_cfg is None else OnlinePerception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed)
-    env = RslBaodingEnv(env_cfg, ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs, perception=perception)
+    env = RslBaodingEnv(env_cfg, ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs, perception=perception,
+                        privileged_critic=ppo_cfg.privileged_critic)
     if perception is not None:
         env.on_step = perception.record
     if checkpoint is not None and checkpoint["obs_dim"] != env.num_obs:

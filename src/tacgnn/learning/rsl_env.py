@@ -2,8 +2,9 @@
 
 rsl_rl's runner calls ``step(actions)`` and expects, for N envs:
 
-* observations: a TensorDict of groups; ours has one, ``"policy"`` (N, obs_dim) float32,
-  read by both the actor and the critic;
+* observations: a TensorDict of groups: ``"policy"`` (N, obs_dim) float32, read by the
+  actor (and the critic), and with ``privileged_critic`` ``"critic"`` (N, 54), the
+  ground-truth observation, read by the critic only;
 * rewards (N,) float32: the env's reward times `reward_scale` (the authors use 0.01);
 * dones (N,) int64: 1 where an episode ended in this step (terminated or truncated);
 * extras: ``"time_outs"`` (N,) bool, the truncated envs, on which PPO bootstraps
@@ -52,7 +53,8 @@ class RslBaodingEnv(VecEnv):
     """
 
     def __init__(self, config: BaodingConfig, reward_scale: float = 0.01, bootstrap_time_outs: bool = True,
-                 perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None):
+                 perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                 privileged_critic: bool = False):
         if config.obs_mode == "tactile":
             raise ValueError("obs_mode 'tactile' gives a dict of raw skin arrays, which an MLP policy cannot "
                              "read; use 'perceived' with a perception model, or another obs_mode")
@@ -66,6 +68,7 @@ class RslBaodingEnv(VecEnv):
         self.device = "cpu"
         self.reward_scale = reward_scale
         self.bootstrap_time_outs = bootstrap_time_outs
+        self.privileged_critic = privileged_critic
         obs, _ = self.env.reset(seed=config.seed)
         self._obs = self._wrap(obs)
         # Running sums of each reward term over the current episode, (N,) per term (env units).
@@ -97,8 +100,11 @@ class RslBaodingEnv(VecEnv):
             extras["time_outs"] = torch.from_numpy(truncated.copy())
         return self._obs, rewards, torch.from_numpy(done.astype(np.int64)), extras
 
-    def _wrap(self, obs: np.ndarray) -> TensorDict:
-        return TensorDict({"policy": torch.from_numpy(obs)}, batch_size=[self.num_envs])
+    def _wrap(self, obs: np.ndarray, critic_obs: np.ndarray | None = None) -> TensorDict:
+        groups = {"policy": torch.from_numpy(obs)}
+        if self.privileged_critic:
+            groups["critic"] = torch.from_numpy(self.env.groundtruth_obs() if critic_obs is None else critic_obs)
+        return TensorDict(groups, batch_size=[self.num_envs])
 
     def _episode_log(self, info: dict, done: np.ndarray) -> dict[str, torch.Tensor]:
         """Statistics of the episodes that ended in this step, one value per episode.
@@ -145,6 +151,7 @@ class RslBaodingEnv(VecEnv):
             "buffers": {name: torch.from_numpy(getattr(self.env, name).copy()) for name in _ENV_BUFFERS},
             "rng": self.env._rng.bit_generator.state,  # plain dict of ints and strings
             "obs": self._obs["policy"].clone(),
+            **({"critic_obs": self._obs["critic"].clone()} if self.privileged_critic else {}),
             "episode_terms": {k: torch.from_numpy(v.copy()) for k, v in self._episode_terms.items()},
         }
 
@@ -160,7 +167,10 @@ class RslBaodingEnv(VecEnv):
         for name, values in state["buffers"].items():
             getattr(self.env, name)[...] = values.numpy()
         self.env._rng.bit_generator.state = state["rng"]
-        self._obs = self._wrap(state["obs"].numpy().copy())
+        if self.privileged_critic and "critic_obs" not in state:
+            raise ValueError("saved env state has no critic observations: it was trained without a privileged critic")
+        critic = state["critic_obs"].numpy().copy() if self.privileged_critic else None
+        self._obs = self._wrap(state["obs"].numpy().copy(), critic)
         self._episode_terms = {k: v.numpy().copy() for k, v in state["episode_terms"].items()}
         # Derived fields (xpos, sensors) stay stale until the next step recomputes them; the
         # step reads none of them before it does, and calling forward() here would not be
