@@ -10,10 +10,12 @@
 #                   so that seeds of the blind stage share one ground-truth policy
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
-# 2. its rollouts on the Hard task as the perception dataset (50,000 frames, from the first step)
+# 2. its rollouts as the perception dataset (50,000 frames, from the first step; recorded on the
+#    Simple task: a perception trained on Hard-task rollouts measured worse in the loop)
 # 3. the perception model trained on it offline (10 epochs; the loss does not care which ball is
 #    which: the env keeps the identities by tracking, see BaodingConfig.track_balls)
-# 4. the policy fine-tuned with the perceived ball positions, perception trained in the loop
+# 4. the policy fine-tuned with the perceived ball positions (the critic reads the true ones),
+#    perception trained in the loop
 #    (2 epochs on the newest 25,600 frames every 400 env steps)
 # 5. evaluation on Simple, Middle and Hard, 512 episodes each -> results/RUN_model_NNNNNN.json
 # Every step skips what already exists and resumes a run that was cut off (datasets resume by
@@ -35,10 +37,9 @@ if [ ! -f "$(last $GT 2000)" ]; then
   $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hard --ppo max_iterations=2000 \
     save_interval=100 init_from=runs/gt_s0/model_002500.pt init_noise_std=0.3 seed=$GT_SEED
 fi
-DATA=data/baoding_gthard_hardtask_s$GT_SEED
-$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED \
-  --set task=hard
-PERC=runs/perc/gthardtask_s${SEED}_$TAG
+DATA=data/baoding_gthard_s$GT_SEED
+$T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED
+PERC=runs/perc/gthard_s${SEED}_${TAG}_pi
 if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
   $T train-perception --task baoding --model $MODEL --dataset $DATA --run $PERC --epochs 10 --seed $SEED \
     $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) $( [ -n "$PSET" ] && echo --set $PSET || true )
@@ -47,6 +48,7 @@ RUN=runs/blind_${TAG}_hard_s$SEED
 if [ ! -f "$(last $RUN $ITERS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hard --ppo max_iterations=$ITERS \
     save_interval=100 init_from="$(last $GT 2000)" init_noise_std=0.2 learning_rate=0.0003 schedule=fixed \
+    privileged_critic=true \
     seed=$SEED --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt epochs=2 \
     update_every_steps=400
 fi
