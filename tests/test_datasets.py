@@ -92,8 +92,12 @@ def test_writer_rejects_bad_shards_and_other_metadata(tmp_path):
         writer.write_shard(0, {"x": np.zeros((4, 2))})
     with pytest.raises(DatasetError, match="NaN"):
         writer.write_shard(0, {"x": np.full((4, 3), np.nan)})
-    with pytest.raises(DatasetError, match="metadata"):
+    with pytest.raises(DatasetError, match="metadata.object: 'cube' there, 'cylinder' now"):
         ShardedWriter(tmp_path, {"x": Field((3,))}, {"object": "cylinder"}, num_shards=2, shard_size=4)
+    with pytest.raises(DatasetError, match="shard_size: 4 there, 8 now"):
+        ShardedWriter(tmp_path, {"x": Field((3,))}, {"object": "cube"}, num_shards=2, shard_size=8)
+    # a config key the code gained since (default = old behaviour) does not block a resume
+    ShardedWriter(tmp_path, {"x": Field((3,))}, {"object": "cube", "new_key": True}, num_shards=2, shard_size=4)
 
 
 @pytest.mark.parametrize("obj", ["cube", "cylinder", "meat_can"])

@@ -50,6 +50,24 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+def _differences(old, new, prefix: str = "") -> tuple[list[tuple[str, object, object]], list[str]]:
+    """(changed, added): dotted keys whose values differ, and keys only `new` has."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        changed: list = []
+        added: list = []
+        for key in new:
+            path = f"{prefix}{key}"
+            if key not in old:
+                added.append(path)
+                continue
+            c, a = _differences(old[key], new[key], f"{path}.")
+            changed += c
+            added += a
+        changed += [(f"{prefix}{key}", old[key], None) for key in old if key not in new]
+        return changed, added
+    return ([(prefix.rstrip("."), old, new)] if old != new else []), []
+
+
 def _atomic_write_text(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
     with os.fdopen(fd, "w") as fh:
@@ -84,10 +102,14 @@ class ShardedWriter:
         if self.manifest_path.exists():
             manifest = read_manifest(self.root)
             old = {k: manifest[k] for k in header}
-            if json.loads(json.dumps(header)) != old:
-                diff = [k for k in header if json.loads(json.dumps(header[k])) != old[k]]
-                raise DatasetError(f"{self.manifest_path}: existing dataset differs in {diff}; "
-                                   "use another folder or delete it")
+            changed, added = _differences(old, json.loads(json.dumps(header)))
+            if changed:
+                shown = "; ".join(f"{key}: {a!r} there, {b!r} now" for key, a, b in changed[:5])
+                raise DatasetError(f"{self.manifest_path}: the existing dataset was made with other settings "
+                                   f"({shown}{'; ...' if len(changed) > 5 else ''}); use another folder or "
+                                   "delete it")
+            # config keys added to the code since (their defaults keep the old behaviour) do not
+            # make the shards already written different
             self.manifest = manifest
         else:
             self.manifest = {**header, "shards": {}}
