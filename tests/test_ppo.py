@@ -164,6 +164,21 @@ def test_resume_with_another_obs_mode_names_it(run2, tmp_path):
               tmp_path / "run", resume=True)
 
 
+def test_resume_accepts_config_keys_added_since(run2, tmp_path):
+    """A checkpoint written before an env key existed resumes under that key's default, and not
+    under another value."""
+    shutil.copytree(run2, tmp_path / "run")
+    path = tmp_path / "run" / "model_000002.pt"
+    ckpt = torch.load(path, weights_only=True)
+    del ckpt["env_config"]["track_balls"]
+    torch.save(ckpt, path)
+    assert train(ENV, ppo(3), tmp_path / "run", resume=True).name == "model_000003.pt"
+    shutil.copytree(run2, tmp_path / "run2")
+    torch.save(ckpt, tmp_path / "run2" / "model_000002.pt")
+    with pytest.raises(ValueError, match="track_balls"):
+        train(replace(ENV, track_balls=False), ppo(3), tmp_path / "run2", resume=True)
+
+
 def test_truncated_checkpoint_is_named(run2, tmp_path):
     shutil.copytree(run2, tmp_path / "run")
     path = tmp_path / "run" / "model_000002.pt"

@@ -404,7 +404,11 @@ def check_compatible(checkpoint: dict[str, Any], env_cfg: BaodingConfig, ppo_cfg
     The whole env config must match: besides what changes the observation (obs_mode,
     skin, ...), the saved env state only fits the same envs, physics and task.
     """
-    diffs = _differences(checkpoint["env_config"], to_dict(env_cfg))
+    try:  # keys added to the code since the checkpoint was written read as their defaults
+        stored_env = to_dict(from_dict(BaodingConfig, checkpoint["env_config"]))
+    except ConfigError as err:
+        raise CheckpointError(f"checkpoint {path}: its env config does not fit this code: {err}") from None
+    diffs = _differences(stored_env, to_dict(env_cfg))
     stored_ppo, wanted_ppo = checkpoint["ppo_config"], to_dict(ppo_cfg)
     diffs += [(f"ppo.{k}", stored_ppo.get(k), wanted_ppo[k]) for k in ARCHITECTURE_KEYS
               if stored_ppo.get(k) != wanted_ppo[k]]
