@@ -63,19 +63,25 @@ def ensure_datasets(args) -> dict[str, Path]:
     return paths
 
 
-def run_config(task: str, model: str, channels: int, seed: int, args, max_samples: int = 0) -> PerceptionTrainConfig:
+def label(model: str, channels: int, joints: int = 0) -> str:
+    return (f"{model}-{channels}" if model == "tacgnn" else model) + (" + joint angles" if joints else "")
+
+
+def run_config(task: str, model: str, channels: int, seed: int, args, max_samples: int = 0,
+               joints: int = 0) -> PerceptionTrainConfig:
     cfg = PerceptionTrainConfig.for_task(task, model, epochs=args.epochs, seed=seed, max_samples=max_samples,
-                                         model_kw={"channels": channels, **args.model_kw})
+                                         model_kw={"channels": channels, "joint_inputs": joints, **args.model_kw})
     return replace(cfg, lr=1e-3, lr_schedule="constant", init_output_bias=False) if args.paper_setup else cfg
 
 
-def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = -1) -> dict:
+def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = -1,
+        joints: int = 0) -> dict:
     max_samples = args.max_samples.get(task, 0) if max_samples < 0 else max_samples
-    name = f"{model}-{channels}" if model == "tacgnn" else model
+    name = (f"{model}-{channels}" if model == "tacgnn" else model) + ("-joints" if joints else "")
     setup = "paper" if args.paper_setup else "ours"
     run_dir = (ROOT / "runs" / "perception" / setup / task / (f"n{max_samples}" if max_samples else "all") / name
                / f"seed{seed}")
-    cfg = run_config(task, model, channels, seed, args, max_samples)
+    cfg = run_config(task, model, channels, seed, args, max_samples, joints)
     ckpt = run_dir / "checkpoint.pt"
     if ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1:
         history = load_checkpoint(ckpt)["history"]
@@ -126,10 +132,13 @@ def main() -> None:
              "(the paper: 1,000,000 steps and 200,000 grasps). Ours: mean ± std over seeds.", ""]
 
     # Table II: ball positions
-    models = [("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 16), ("tacgnn", 64), ("tacgnn", 128)]
+    # the paper's rows, then beyond the paper: the same models reading the hand's 16 joint angles too
+    models = [("mlp", 32, 0), ("cnn", 32, 0), ("gcn", 32, 0), ("tacgnn", 32, 0), ("tacgnn", 16, 0), ("tacgnn", 64, 0),
+              ("tacgnn", 128, 0), ("mlp", 32, 16), ("tacgnn", 32, 16)]
     table2 = {}
-    for model, ch in models:
-        table2[(model, ch)] = [run("baoding", model, ch, s, data["baoding"], args) for s in seeds]
+    for model, ch, joints in models:
+        table2[(model, ch, joints)] = [run("baoding", model, ch, s, data["baoding"], args, joints=joints)
+                                       for s in seeds]
     lines += ["## Table II: ball positions (RMSE, cm)", "",
               "Test error split by what the skin sees: *touched* = balls with an activated taxel "
               "within 3 cm of the centre, *untouched* = the others (resting on the other ball or on "
@@ -137,14 +146,14 @@ def main() -> None:
               "| model | train (ours) | test (ours) | test, touched balls | test, untouched balls | train (paper) "
               "| test (paper) | s/epoch |", "|---|---|---|---|---|---|---|---|"]
     blind_share = []
-    for (model, ch), runs in table2.items():
-        key = f"tacgnn-{ch}" if model == "tacgnn" else model
+    for (model, ch, joints), runs in table2.items():
+        key = label(model, ch, joints)
         tr = [r["final"]["train/position_rmse_cm"] for r in runs]
         te = [r["final"]["test/position_rmse_cm"] for r in runs]
         vis = [evaluate(r["ckpt"], data["baoding"]) for r in runs]
         blind_share.append(vis[0]["blind_fraction"])
         sec = np.mean([h["seconds"] for r in runs for h in r["history"]])
-        p = PAPER_TABLE2[key]
+        p = PAPER_TABLE2.get(key, ("-", "-"))
         lines.append(f"| {key} | {mean_std(tr)} | {mean_std(te)} | {mean_std([v['seen_rmse_cm'] for v in vis])} | "
                      f"{mean_std([v['blind_rmse_cm'] for v in vis])} | {p[0]} | {p[1]} | {sec:.1f} |")
     lines += ["", f"Untouched balls: {100 * blind_share[0]:.1f} % of the test balls.", ""]
@@ -165,8 +174,8 @@ def main() -> None:
     lines += ["", f"## Beyond the paper: dead taxels and a skin of {args.other_pitch}x pitch, no retraining "
               "(ball positions, test RMSE cm)", "",
               "| model | intact | 10 % dead | 20 % dead | other pitch |", "|---|---|---|---|---|"]
-    for (model, ch), runs in table2.items():
-        key = f"tacgnn-{ch}" if model == "tacgnn" else model
+    for (model, ch, joints), runs in table2.items():
+        key = label(model, ch, joints)
         cols = []
         for dead in (0.0, 0.1, 0.2):
             cols.append(mean_std([evaluate(r["ckpt"], data["baoding"], dead_fraction=dead, seed=i)["position_rmse_cm"]
@@ -193,7 +202,7 @@ def main() -> None:
     out = ROOT / "docs" / f"{stem}.md"
     out.write_text("\n".join(lines))
     (ROOT / "docs" / f"{stem}.json").write_text(json.dumps(
-        {f"{m}-{c}": [r["final"] for r in runs] for (m, c), runs in table2.items()}, indent=1))
+        {label(*k): [r["final"] for r in runs] for k, runs in table2.items()}, indent=1))
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "
           f"{[read_manifest(p)['metadata']['seed'] for p in data.values()]}")
@@ -206,10 +215,10 @@ def plot_curves(table2, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    for (model, ch), runs in table2.items():
+    for key, runs in table2.items():
         h = runs[0]["history"]
-        label = f"tacgnn-{ch}" if model == "tacgnn" else model
-        ax.plot([r["epoch"] + 1 for r in h], [r["test/position_rmse_cm"] for r in h], label=label, marker="o", ms=3)
+        ax.plot([r["epoch"] + 1 for r in h], [r["test/position_rmse_cm"] for r in h], label=label(*key), marker="o",
+                ms=3)
     ax.set_xlabel("epoch")
     ax.set_ylabel("test RMSE (cm)")
     ax.set_yscale("log")
