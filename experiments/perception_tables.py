@@ -63,7 +63,7 @@ def ensure_datasets(args) -> dict[str, Path]:
     return paths
 
 
-def label(model: str, channels: int, joints: int = 0) -> str:
+def row_label(model: str, channels: int, joints: int = 0) -> str:
     return (f"{model}-{channels}" if model == "tacgnn" else model) + (" + joint angles" if joints else "")
 
 
@@ -147,7 +147,7 @@ def main() -> None:
               "| test (paper) | s/epoch |", "|---|---|---|---|---|---|---|---|"]
     blind_share = []
     for (model, ch, joints), runs in table2.items():
-        key = label(model, ch, joints)
+        key = row_label(model, ch, joints)
         tr = [r["final"]["train/position_rmse_cm"] for r in runs]
         te = [r["final"]["test/position_rmse_cm"] for r in runs]
         vis = [evaluate(r["ckpt"], data["baoding"]) for r in runs]
@@ -175,7 +175,7 @@ def main() -> None:
               "(ball positions, test RMSE cm)", "",
               "| model | intact | 10 % dead | 20 % dead | other pitch |", "|---|---|---|---|---|"]
     for (model, ch, joints), runs in table2.items():
-        key = label(model, ch, joints)
+        key = row_label(model, ch, joints)
         cols = []
         for dead in (0.0, 0.1, 0.2):
             cols.append(mean_std([evaluate(r["ckpt"], data["baoding"], dead_fraction=dead, seed=i)["position_rmse_cm"]
@@ -202,7 +202,7 @@ def main() -> None:
     out = ROOT / "docs" / f"{stem}.md"
     out.write_text("\n".join(lines))
     (ROOT / "docs" / f"{stem}.json").write_text(json.dumps(
-        {label(*k): [r["final"] for r in runs] for k, runs in table2.items()}, indent=1))
+        {row_label(*k): [r["final"] for r in runs] for k, runs in table2.items()}, indent=1))
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "
           f"{[read_manifest(p)['metadata']['seed'] for p in data.values()]}")
@@ -217,7 +217,7 @@ def plot_curves(table2, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     for key, runs in table2.items():
         h = runs[0]["history"]
-        ax.plot([r["epoch"] + 1 for r in h], [r["test/position_rmse_cm"] for r in h], label=label(*key), marker="o",
+        ax.plot([r["epoch"] + 1 for r in h], [r["test/position_rmse_cm"] for r in h], label=row_label(*key), marker="o",
                 ms=3)
     ax.set_xlabel("epoch")
     ax.set_ylabel("test RMSE (cm)")
