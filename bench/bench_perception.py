@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from tacgnn.perception.models import PerceptionModelConfig, build_model, keep_freed_memory
+from tacgnn.perception.train import TRAIN_MODEL_DEFAULTS, default_model_config, make_optimizer
 
 T = 653
 
@@ -80,7 +81,7 @@ def graphs_per_second(model, readings, positions, rounds=7, round_time=0.3) -> t
 
 def train_seconds(model, readings, offsets, targets, rest, steps: int, batch: int = 32) -> float:
     """Wall time of ``steps`` Adam steps on shuffled mini-batches (MSE)."""
-    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    opt = make_optimizer(model, 1e-3, 0.0)  # fused Adam where torch has it, as training uses
     model.train()
     N = readings.shape[0]
     perm = torch.cat([torch.randperm(N) for _ in range(steps * batch // N + 1)])
@@ -121,6 +122,22 @@ def main() -> None:
             best, med = graphs_per_second(tacgnn, readings, positions)
             print(f"TacGNN-32 inference, batch 256, {threads} thread(s), {label}: "
                   f"{best:,.0f} graphs/s best round (median {med:,.0f}; load {load()})")
+    # the settings `tacgnn train-perception` starts from (log force input, jumping-knowledge readout)
+    ours = build_model(default_model_config(name="tacgnn", channels=32))
+    ours_joints = build_model(default_model_config(name="tacgnn", channels=32, joint_inputs=16))
+    joints = torch.rand(len(readings), 16)
+    for threads in (2, 1):
+        torch.set_num_threads(threads)
+        best, med = graphs_per_second(ours, readings, positions)
+        print(f"TacGNN-32, training defaults ({', '.join(f'{k}={v}' for k, v in TRAIN_MODEL_DEFAULTS.items())}), "
+              f"{threads} thread(s): {best:,.0f} graphs/s best round (median {med:,.0f}; load {load()})")
+    torch.set_num_threads(1)
+    with torch.inference_mode():
+        start = time.perf_counter()
+        for _ in range(20):
+            ours_joints(readings, positions, joints)
+        print(f"TacGNN-32, training defaults + 16 joint angles, 1 thread: "
+              f"{20 * len(readings) / (time.perf_counter() - start):,.0f} graphs/s (one round of 20 batches)")
 
     if args.profile:
         from torch.profiler import ProfilerActivity, profile
@@ -144,13 +161,13 @@ def main() -> None:
     tr, off, tg = make_frames(n_train, rest, seed=1)
     for threads in args.train_threads:
         torch.set_num_threads(threads)
-        model = build_model(PerceptionModelConfig(name="tacgnn", channels=32))
+        model = build_model(default_model_config(name="tacgnn", channels=32))
         train_seconds(model, tr, off, tg, rest, steps=20)  # warm-up
         steps = total_steps if args.full else 400
         secs = train_seconds(model, tr, off, tg, rest, steps=steps)
         full = secs * total_steps / steps
         how = "measured" if args.full else f"EXTRAPOLATED from {steps} of {total_steps} steps ({secs:.1f} s)"
-        print(f"TacGNN-32 training, {epochs} epochs x {n_train:,} samples, batch {batch}, Adam, "
+        print(f"TacGNN-32 (training defaults) training, {epochs} epochs x {n_train:,} samples, batch {batch}, Adam, "
               f"{threads} thread(s): {full:.0f} s [{how}; load {load()}]")
 
 
