@@ -79,8 +79,8 @@ def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, ma
     max_samples = args.max_samples.get(task, 0) if max_samples < 0 else max_samples
     name = (f"{model}-{channels}" if model == "tacgnn" else model) + ("-joints" if joints else "")
     setup = "paper" if args.paper_setup else "ours"
-    run_dir = (ROOT / "runs" / "perception" / setup / task / (f"n{max_samples}" if max_samples else "all") / name
-               / f"seed{seed}")
+    root = ROOT / "runs" / ("perception_quick" if args.quick else "perception")  # quick runs never mix in
+    run_dir = root / setup / task / (f"n{max_samples}" if max_samples else "all") / name / f"seed{seed}"
     cfg = run_config(task, model, channels, seed, args, max_samples, joints)
     ckpt = run_dir / "checkpoint.pt"
     if ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1:
@@ -102,6 +102,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--epochs", type=int, default=10)
+    parser.add_argument("--only-table1", action="store_true",
+                        help="train Table I's runs and stop (to run beside a full invocation on another core; "
+                             "a full run afterwards reuses them and writes the page)")
     parser.add_argument("--paper-setup", action="store_true",
                         help="the paper's loop and TacGNN (lr 1e-3 constant, positions only, last-layer pool) "
                              "instead of our training defaults")
@@ -130,6 +133,13 @@ def main() -> None:
              f"Datasets: Baoding {args.baoding_samples} frames of `{data['baoding'].relative_to(ROOT) if data['baoding'].is_absolute() else data['baoding']}`"
              f", grasps {args.grasp_samples} per object "
              "(the paper: 1,000,000 steps and 200,000 grasps). Ours: mean ± std over seeds.", ""]
+
+    if args.only_table1:
+        for obj in ("cube", "cylinder", "meat_can"):
+            for m in ("tacgnn", "mlp", "cnn", "gcn"):
+                for s in seeds:
+                    run(obj, m, 32, s, data[obj], args)
+        return
 
     # Table II: ball positions
     # the paper's rows, then beyond the paper: the same models reading the hand's 16 joint angles too
