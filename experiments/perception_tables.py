@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from dataclasses import replace
@@ -83,6 +84,7 @@ def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, ma
     run_dir = root / setup / task / (f"n{max_samples}" if max_samples else "all") / name / f"seed{seed}"
     cfg = run_config(task, model, channels, seed, args, max_samples, joints)
     ckpt = run_dir / "checkpoint.pt"
+    _wait_for_other_process(run_dir)
     if ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1:
         history = load_checkpoint(ckpt)["history"]
     else:
@@ -90,7 +92,28 @@ def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, ma
         train(cfg, dataset, run_dir, resume=True, log=lambda line: print(f"[{task} {name} s{seed}] {line}", flush=True))
         print(f"[{task} {name} s{seed}] {time.perf_counter() - start:.0f} s", flush=True)
         history = load_checkpoint(ckpt)["history"]
+    (run_dir / ".owner").unlink(missing_ok=True)
     return {"ckpt": ckpt, "history": history, "final": history[-1]}
+
+
+def _wait_for_other_process(run_dir: Path) -> None:
+    """Two invocations (e.g. one with --only-table1) may reach the same run: the second waits.
+
+    A run folder being trained holds `.owner` with the trainer's pid; a folder whose owner is
+    gone (killed) is taken over and resumed.
+    """
+    owner = run_dir / ".owner"
+    while owner.exists():
+        try:
+            pid = int(owner.read_text())
+            os.kill(pid, 0)  # raises if no such process
+        except (ValueError, ProcessLookupError, FileNotFoundError):
+            break
+        if pid == os.getpid():
+            return
+        time.sleep(10)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    owner.write_text(str(os.getpid()))
 
 
 def mean_std(values: list[float]) -> str:
