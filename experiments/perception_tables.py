@@ -84,15 +84,20 @@ def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, ma
     run_dir = root / setup / task / (f"n{max_samples}" if max_samples else "all") / name / f"seed{seed}"
     cfg = run_config(task, model, channels, seed, args, max_samples, joints)
     ckpt = run_dir / "checkpoint.pt"
-    _wait_for_other_process(run_dir)
-    if ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1:
+    complete = ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1
+    if args.report and not complete:
+        return None  # --report: the page shows "not run"
+    if not args.report:
+        _wait_for_other_process(run_dir)
+    if complete:
         history = load_checkpoint(ckpt)["history"]
     else:
         start = time.perf_counter()
         train(cfg, dataset, run_dir, resume=True, log=lambda line: print(f"[{task} {name} s{seed}] {line}", flush=True))
         print(f"[{task} {name} s{seed}] {time.perf_counter() - start:.0f} s", flush=True)
         history = load_checkpoint(ckpt)["history"]
-    (run_dir / ".owner").unlink(missing_ok=True)
+    if not args.report:
+        (run_dir / ".owner").unlink(missing_ok=True)
     return {"ckpt": ckpt, "history": history, "final": history[-1]}
 
 
@@ -117,6 +122,8 @@ def _wait_for_other_process(run_dir: Path) -> None:
 
 
 def mean_std(values: list[float]) -> str:
+    if not values:
+        return "not run"
     return f"{np.mean(values):.3f} ± {np.std(values):.3f}" if len(values) > 1 else f"{values[0]:.3f}"
 
 
@@ -128,6 +135,8 @@ def main() -> None:
     parser.add_argument("--only-table1", action="store_true",
                         help="train Table I's runs and stop (to run beside a full invocation on another core; "
                              "a full run afterwards reuses them and writes the page)")
+    parser.add_argument("--report", action="store_true",
+                        help="train nothing: write the page from the runs that are complete ('not run' for others)")
     parser.add_argument("--paper-setup", action="store_true",
                         help="the paper's loop and TacGNN (lr 1e-3 constant, positions only, last-layer pool) "
                              "instead of our training defaults")
@@ -170,8 +179,8 @@ def main() -> None:
               ("tacgnn", 128, 0), ("mlp", 32, 16), ("tacgnn", 32, 16)]
     table2 = {}
     for model, ch, joints in models:
-        table2[(model, ch, joints)] = [run("baoding", model, ch, s, data["baoding"], args, joints=joints)
-                                       for s in seeds]
+        table2[(model, ch, joints)] = [r for s in seeds
+                                       if (r := run("baoding", model, ch, s, data["baoding"], args, joints=joints))]
     lines += ["## Table II: ball positions (RMSE, cm)", "",
               "Test error split by what the skin sees: *touched* = balls with an activated taxel "
               "within 3 cm of the centre, *untouched* = the others (resting on the other ball or on "
@@ -184,19 +193,20 @@ def main() -> None:
         tr = [r["final"]["train/position_rmse_cm"] for r in runs]
         te = [r["final"]["test/position_rmse_cm"] for r in runs]
         vis = [evaluate(r["ckpt"], data["baoding"]) for r in runs]
-        blind_share.append(vis[0]["blind_fraction"])
-        sec = np.mean([h["seconds"] for r in runs for h in r["history"]])
+        blind_share += [v["blind_fraction"] for v in vis[:1]]
+        sec = np.mean([h["seconds"] for r in runs for h in r["history"]]) if runs else float("nan")
         p = PAPER_TABLE2.get(key, ("-", "-"))
         lines.append(f"| {key} | {mean_std(tr)} | {mean_std(te)} | {mean_std([v['seen_rmse_cm'] for v in vis])} | "
                      f"{mean_std([v['blind_rmse_cm'] for v in vis])} | {p[0]} | {p[1]} | {sec:.1f} |")
-    lines += ["", f"Untouched balls: {100 * blind_share[0]:.1f} % of the test balls.", ""]
+    if blind_share:
+        lines += ["", f"Untouched balls: {100 * blind_share[0]:.1f} % of the test balls.", ""]
 
     # Table I: objects
     lines += ["", "## Table I: object pose after a power grasp (test RMSE: position cm / orientation deg)", "",
               "| object | metric | MLP | CNN | GCN | TacGNN | paper MLP | paper CNN | paper GCN | paper TacGNN |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for obj in ("cube", "cylinder", "meat_can"):
-        res = {m: [run(obj, m, 32, s, data[obj], args) for s in seeds] for m in ("mlp", "cnn", "gcn", "tacgnn")}
+        res = {m: [r for s in seeds if (r := run(obj, m, 32, s, data[obj], args))] for m in ("mlp", "cnn", "gcn", "tacgnn")}
         for metric, idx, label in (("test/position_rmse_cm", 0, "position (cm)"),
                                    ("test/orientation_rmse_deg", 1, "orientation (deg)")):
             ours = [mean_std([r["final"][metric] for r in res[m]]) for m in ("mlp", "cnn", "gcn", "tacgnn")]
@@ -223,11 +233,12 @@ def main() -> None:
     curve = {}
     for model, ch in (("mlp", 32), ("gcn", 32), ("tacgnn", 32)):
         curve[model] = [run("baoding", model, ch, 0, data["baoding"], args, max_samples=0 if n == total else n)
-                        ["final"]["test/position_rmse_cm"] for n in sizes]
+                        for n in sizes]
     lines += ["", "## Does more data change the ranking? (ball positions, seed 0, test RMSE cm)", "",
               "| frames | " + " | ".join(curve) + " |", "|---|" + "---|" * len(curve)]
     for i, n in enumerate(sizes):
-        lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]:.3f}" for m in curve) + " |")
+        lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]['final']['test/position_rmse_cm']:.3f}"
+                                              if curve[m][i] else "not run" for m in curve) + " |")
 
     stem = "perception_results" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
     plot_curves(table2, ROOT / "docs" / f"{stem}.png")
@@ -249,6 +260,8 @@ def plot_curves(table2, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for key, runs in table2.items():
+        if not runs:
+            continue
         h = runs[0]["history"]
         ax.plot([r["epoch"] + 1 for r in h], [r["test/position_rmse_cm"] for r in h], label=row_label(*key), marker="o",
                 ms=3)
