@@ -17,31 +17,20 @@ import torch
 
 torch.set_num_threads(1)
 from tacgnn.config import override, parse_overrides, to_dict  # noqa: E402
-from tacgnn.perception.train import (PerceptionTrainConfig, load_model, load_tactile, predict,  # noqa: E402
-                                     split, train)
+from tacgnn.perception.train import (PerceptionTrainConfig, ball_visibility_errors, load_model,  # noqa: E402
+                                     load_tactile, predict, split, train)
 
 ROOT = Path(__file__).resolve().parents[2]
 OUT = Path(__file__).with_name("results.jsonl")
 
 
 def breakdown(model, test, match_balls: bool) -> dict:
-    pred = predict(model, test)
-    t = test.targets
-    if match_balls:
-        sw = t[:, [3, 4, 5, 0, 1, 2]]
-        use_sw = ((pred - sw) ** 2).sum(1) < ((pred - t) ** 2).sum(1)
-        t = torch.where(use_sw[:, None], sw, t)
-    act = test.readings > 0
-    sq = (pred - t) ** 2
-    seen_se, seen_n, blind_se, blind_n = 0.0, 0, 0.0, 0
-    for b in range(2):
-        d = (test.positions - t[:, None, 3 * b:3 * b + 3]).norm(dim=-1).masked_fill(~act, float("inf")).min(1).values
-        e = sq[:, 3 * b:3 * b + 3].sum(1)
-        seen = d < 3.0
-        seen_se += e[seen].sum().item(); seen_n += int(seen.sum())
-        blind_se += e[~seen].sum().item(); blind_n += int((~seen).sum())
-    return {"seen_rmse": (seen_se / (3 * seen_n)) ** 0.5, "blind_rmse": (blind_se / (3 * max(1, blind_n))) ** 0.5,
-            "blind_share_of_mse": blind_se / (seen_se + blind_se), "blind_frac": blind_n / (2 * len(t))}
+    """The library's touched/untouched split, under this screen's result keys."""
+    v = ball_visibility_errors(predict(model, test), test, match_balls)
+    seen_se = (1 - v["blind_fraction"]) * v["seen_rmse_cm"] ** 2
+    blind_se = v["blind_fraction"] * v["blind_rmse_cm"] ** 2
+    return {"seen_rmse": v["seen_rmse_cm"], "blind_rmse": v["blind_rmse_cm"],
+            "blind_share_of_mse": blind_se / (seen_se + blind_se), "blind_frac": v["blind_fraction"]}
 
 
 def main() -> None:
