@@ -8,7 +8,7 @@ import pytest
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, compile_with_skin, hand_scene
-from tacgnn.sim.tactile import SLOT_SIZE, TactileModel, _CandidateGrid
+from tacgnn.sim.tactile import SLOT_SIZE, TactileModel, _CandidateGrid, standard_normal_float32
 
 
 def reference_readings(tactile, sensordata, xpos, xmat, rng=None):
@@ -78,9 +78,21 @@ def float32_tolerance(tactile, sensordata):
     return 1e-6 + 3e-4 * np.cbrt(tactile.contacts(sensordata)[0].max()) / c
 
 
-@pytest.fixture(scope="module")
-def tactile():
-    return _tactile(replace(default_skin(), threshold=0.0, noise=0.0))
+@pytest.fixture(scope="module", params=["compiled", "numpy"])
+def tactile(request):
+    """Both implementations of the contact spreading: the numba kernel and the numpy path."""
+    model = _tactile(replace(default_skin(), threshold=0.0, noise=0.0))
+    model.use_compiled = request.param == "compiled"
+    return model
+
+
+def test_compiled_and_numpy_paths_agree_on_a_busy_batch():
+    pytest.importorskip("numba")
+    tactile = _tactile(replace(default_skin(), threshold=0.0, noise=0.0))
+    state = random_state(tactile, num_envs=40, seed=21)
+    compiled = tactile.readings(*state)
+    tactile.use_compiled = False
+    np.testing.assert_allclose(compiled, tactile.readings(*state), rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -132,7 +144,7 @@ def test_threshold_and_noise_match_the_reference():
     # noise: the same draws, in (env, taxel) order over the active readings
     noisy = tactile.readings(*state, np.random.default_rng(5))
     active = clean > 0
-    draws = np.random.default_rng(5).standard_normal(active.sum()).astype(np.float32)
+    draws = standard_normal_float32(np.random.default_rng(5), active.sum())
     factor = 1.0 + tactile.layout.noise * draws
     np.testing.assert_array_equal(noisy[active], np.maximum(clean[active] * factor, 0.0))
     assert not noisy[~active].any()
@@ -155,3 +167,12 @@ def test_positions_match_the_rigid_transform(tactile):
     ref = xpos[:, body] + np.einsum("ntij,tj->nti", rot, tactile.local_positions.astype(float))
     assert fast.dtype == np.float32
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-6)
+
+
+def test_table_normal_samples_are_standard_normal():
+    x = standard_normal_float32(np.random.default_rng(0), 400_000).astype(float)
+    assert abs(x.mean()) < 0.01 and abs(x.std() - 1.0) < 0.01
+    # quantiles of N(0, 1): 2.5 % and 97.5 % at -+1.96, 16 % at -1
+    np.testing.assert_allclose(np.quantile(x, [0.025, 0.16, 0.5, 0.84, 0.975]),
+                               [-1.96, -0.994, 0.0, 0.994, 1.96], atol=0.02)
+    assert np.abs(x).max() < 4.5  # the table's tails end at 4.3 sigma

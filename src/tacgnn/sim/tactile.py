@@ -36,6 +36,22 @@ _CONTACT_DATA = mujoco.mjtConDataField.mjCONDATA_FOUND, mujoco.mjtConDataField.m
     mujoco.mjtConDataField.mjCONDATA_POS
 _REDUCE_MAXFORCE = 2
 
+# Standard normal values at the centres of 2^16 equal-probability bins: drawing a uint16
+# and looking it up is 4x faster than numpy's normal sampler, and the skin noise draws
+# one value per active taxel per step. Std 0.99999, tails cut at 4.3 sigma.
+_NORMAL_BITS = 16
+_normal_table: np.ndarray | None = None
+
+
+def standard_normal_float32(rng: np.random.Generator, size: int) -> np.ndarray:
+    """`size` standard normal float32 samples from a 65,536-value quantile table."""
+    global _normal_table
+    if _normal_table is None:
+        from statistics import NormalDist
+        quantiles = (np.arange(1 << _NORMAL_BITS) + 0.5) / (1 << _NORMAL_BITS)
+        _normal_table = np.array([NormalDist().inv_cdf(q) for q in quantiles], np.float32)
+    return np.take(_normal_table, rng.integers(0, 1 << _NORMAL_BITS, size, dtype=np.uint16))
+
 
 def sensor_name(patch_name: str) -> str:
     return f"skin_{patch_name}"
@@ -130,6 +146,79 @@ class _CandidateGrid:
         return self.list_start[cell], np.take(self.counts, cell * self.num_bins + bins).astype(np.intp)
 
 
+def _press_kernel(out, sensordata, xpos, xmat, force_idx, patch_of_slot, body_ids, contact_radius,
+                  half_e_over_a2, origin, cell_size, stride, last, first_cell, list_start, counts,
+                  num_bins, bins_per_cell, order, taxel_xyz, num_taxels):  # pragma: no cover (compiled)
+    """`TactileModel._press_numpy` as one compiled loop over (env, contact slot, candidate).
+
+    Same model and float32 arithmetic per candidate; no temporaries, so the cost is the
+    candidates' count alone (about 5x faster than the numpy version at 64-256 envs).
+    """
+    for env in range(sensordata.shape[0]):
+        row = env * num_taxels
+        for slot in range(force_idx.shape[0]):
+            f = sensordata[env, force_idx[slot]]
+            if f <= 0.0:
+                continue
+            p = patch_of_slot[slot]
+            b = body_ids[p]
+            # contact point in the link frame: R^T (c - x)
+            c0 = sensordata[env, force_idx[slot] + 3] - xpos[env, b, 0]
+            c1 = sensordata[env, force_idx[slot] + 4] - xpos[env, b, 1]
+            c2 = sensordata[env, force_idx[slot] + 5] - xpos[env, b, 2]
+            local = np.empty(3)
+            for i in range(3):
+                local[i] = xmat[env, b, i] * c0 + xmat[env, b, 3 + i] * c1 + xmat[env, b, 6 + i] * c2
+            radius = contact_radius[p] * np.cbrt(f)
+            # the candidate list (see _CandidateGrid.lookup)
+            size = cell_size[p]
+            cell = first_cell[p]
+            s2 = 0.0
+            for i in range(3):
+                x = (local[i] - origin[p, i]) / size
+                q = min(max(np.rint(x), 0.0), last[p, i])
+                s2 += (x - q) * (x - q)
+                cell += int(q * stride[p, i])
+            reach = radius / size + np.sqrt(s2)
+            bins = min(int(np.ceil(reach * bins_per_cell)), num_bins - 1)
+            first = list_start[cell]
+            count = counts[cell * num_bins + bins]
+            if count == 0:
+                continue
+            a2 = np.float32(radius * radius)
+            l0, l1, l2 = np.float32(local[0]), np.float32(local[1]), np.float32(local[2])
+            total = np.float32(0.0)
+            for j in range(first, first + count):
+                t = order[j]
+                d0, d1, d2 = taxel_xyz[0, t] - l0, taxel_xyz[1, t] - l1, taxel_xyz[2, t] - l2
+                u = a2 - d0 * d0 - d1 * d1 - d2 * d2
+                if u > 0:
+                    total += np.sqrt(u)
+            scale = np.float32(f / max(total, half_e_over_a2[p] * a2 * radius))
+            for j in range(first, first + count):
+                t = order[j]
+                d0, d1, d2 = taxel_xyz[0, t] - l0, taxel_xyz[1, t] - l1, taxel_xyz[2, t] - l2
+                u = a2 - d0 * d0 - d1 * d1 - d2 * d2
+                if u > 0:
+                    out[row + t] += np.sqrt(u) * scale
+
+
+def _compiled_press():
+    """The compiled kernel, or None where numba is missing (the numpy path is used then)."""
+    global _press_compiled
+    if _press_compiled is False:
+        try:
+            import numba
+        except ImportError:
+            _press_compiled = None
+        else:
+            _press_compiled = numba.njit(cache=True, nogil=True)(_press_kernel)
+    return _press_compiled
+
+
+_press_compiled = False
+
+
 class TactileModel:
     """Turns link poses and contact sensor data of N envs into taxel readings and positions.
 
@@ -141,6 +230,8 @@ class TactileModel:
         positions(xpos (N, nbody, 3), xmat (N, nbody, 9)) -> (N, T, 3) world, float32
         readings(sensordata (N, nsensordata), xpos, xmat, rng) -> (N, T) newtons, float32
     """
+
+    use_compiled: bool = True  # False: the numpy path (the reference the kernel is tested against)
 
     def __init__(self, layout: SkinLayout, model: mujoco.MjModel):
         self.layout = layout
@@ -203,21 +294,33 @@ class TactileModel:
         n = sensordata.shape[0]
         out = np.zeros(n * self.num_taxels, np.float32)
         self._press(out, sensordata, xpos, xmat)
+        # Threshold and noise touch only the pressed taxels (a few % of the array): one scan
+        # finds them, the rest is work on that short list.
+        index = np.flatnonzero(out > 0)
+        if len(index) == 0:
+            return out.reshape(n, self.num_taxels)
+        values = np.take(out, index)
         if self.layout.threshold > 0:
-            active = out >= self.layout.threshold
-            out *= active  # readings below the threshold read 0
-        else:
-            active = out > 0
+            values[values < self.layout.threshold] = 0.0  # readings below the threshold read 0
         if rng is not None and self.layout.noise > 0:
-            # the active readings in (env, taxel) order, as out[active] would give them
-            index = np.flatnonzero(active)
-            values = np.take(out, index)
-            values *= 1.0 + self.layout.noise * rng.standard_normal(len(index)).astype(np.float32)
+            values *= 1.0 + self.layout.noise * standard_normal_float32(rng, len(index))
             np.maximum(values, 0.0, out=values)
-            out[index] = values
+        out[index] = values
         return out.reshape(n, self.num_taxels)
 
     def _press(self, out: np.ndarray, sensordata: np.ndarray, xpos: np.ndarray, xmat: np.ndarray) -> None:
+        """Add the readings of all contacts to `out` (N * T,): compiled if numba is there."""
+        kernel = _compiled_press() if self.use_compiled else None
+        if kernel is None:
+            return self._press_numpy(out, sensordata, xpos, xmat)
+        g = self._grid
+        kernel(out, np.ascontiguousarray(sensordata, np.float64), np.ascontiguousarray(xpos, np.float64),
+               np.ascontiguousarray(xmat, np.float64), self._force_idx.ravel(), self._patch_of_slot,
+               self.body_ids, self._radius, self._half_e_over_a2, g.origin, g.cell_size, g.stride, g.last,
+               g.first_cell, g.list_start, g.counts, g.num_bins, _CELL_PITCHES / _BIN_PITCHES, g.order,
+               self._taxel_xyz, self.num_taxels)
+
+    def _press_numpy(self, out: np.ndarray, sensordata: np.ndarray, xpos: np.ndarray, xmat: np.ndarray) -> None:
         """Add the readings of all contacts to `out` (N * T,), one entry per (contact, candidate taxel)."""
         force_idx = self._force_idx.ravel()
         force = np.take(sensordata, force_idx, axis=1)  # (N, P * K)
