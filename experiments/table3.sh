@@ -8,6 +8,8 @@
 #   PERCEPTION_SET  extra perception settings, e.g. "model.joint_inputs=16" (skin + joint angles)
 #   GT_SEED=k       (environment) take the ground-truth policy and dataset of seed k (default: SEED),
 #                   so that seeds of the blind stage share one ground-truth policy
+#   GT_SIMPLE_ITERS=n  (environment) iterations of the Simple-task ground-truth policy runs/gt_s0
+#                   (default 2500); trained first if its checkpoint is missing
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
 # 2. its rollouts as the perception dataset (50,000 frames, from the first step; recorded on the
@@ -33,9 +35,15 @@ GT=runs/gt_hard_s$GT_SEED
 resume() { [ -f "$1/config.yaml" ] && echo --resume || true; }
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
 
+GT_SIMPLE=runs/gt_s0
+GT_SIMPLE_ITERS=${GT_SIMPLE_ITERS:-2500}
+if [ ! -f "$(last $GT 2000)" ] && [ ! -f "$(last $GT_SIMPLE $GT_SIMPLE_ITERS)" ]; then
+  $T train-policy --run-dir $GT_SIMPLE $(resume $GT_SIMPLE) --env tactile=false \
+    --ppo max_iterations=$GT_SIMPLE_ITERS save_interval=100 seed=0
+fi
 if [ ! -f "$(last $GT 2000)" ]; then
   $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hard --ppo max_iterations=2000 \
-    save_interval=100 init_from=runs/gt_s0/model_002500.pt init_noise_std=0.3 seed=$GT_SEED
+    save_interval=100 init_from="$(last $GT_SIMPLE $GT_SIMPLE_ITERS)" init_noise_std=0.3 seed=$GT_SEED
 fi
 DATA=data/baoding_gthard_s$GT_SEED
 $T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED
