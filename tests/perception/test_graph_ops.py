@@ -198,3 +198,42 @@ def test_sqdist_keys_order_like_distances():
     order_dist = D.masked_fill(~off, float("inf")).argsort(-1)[..., :5]
     assert torch.equal(order_keys[mask], order_dist[mask])
     assert (torch.diagonal(keys, dim1=1, dim2=2) == -(2**31)).all()  # "self" marker used by FPS
+
+
+# --------------------------------------------------------------------------
+# compiled path (numba): flat node lists, as TacGNN uses them
+# --------------------------------------------------------------------------
+def _edges_of_table(table, loop):
+    return {(int(table[s, i]), i) for i in range(table.shape[1]) for s in range(table.shape[0])
+            if loop or int(table[s, i]) != i}
+
+
+@pytest.mark.parametrize("sizes", SIZES)
+@pytest.mark.parametrize("k", [1, 3, 6])
+@pytest.mark.parametrize("loop", [False, True])
+def test_compiled_knn_table_matches_naive(sizes, k, loop):
+    graph_numba = pytest.importorskip("tacgnn.perception.graph_numba")
+    if not graph_numba.available():
+        pytest.skip("numba is not installed")
+    pos, batch = random_batch(sizes, seed=30 + k)
+    table = graph_numba.knn_table(pos, torch.tensor(sizes), k, loop)
+    n_max = max(sizes)
+    assert table.shape == (max(1, min(k, n_max if loop else n_max - 1)), len(pos))
+    assert _edges_of_table(table, loop) == naive_knn(pos, batch, k, loop)
+    for i in range(len(pos)):  # every slot is a node of the same graph (itself only when alone)
+        assert all(batch[int(j)] == batch[i] for j in table[:, i])
+
+
+@pytest.mark.parametrize("sizes", SIZES)
+@pytest.mark.parametrize("ratio", [0.5, 0.3, 1.0])
+def test_compiled_fps_matches_naive(sizes, ratio):
+    graph_numba = pytest.importorskip("tacgnn.perception.graph_numba")
+    if not graph_numba.available():
+        pytest.skip("numba is not installed")
+    pos, batch = random_batch(sizes, seed=40)
+    counts = torch.tensor(sizes)
+    got = graph_numba.fps_rows(pos, counts, fps_counts(counts, ratio), centroid_start=False)
+    assert got.tolist() == naive_fps(pos, batch, ratio)
+    centroid = lambda p: int(((p - p.mean(0)) ** 2).sum(1).argmax())  # noqa: E731
+    got = graph_numba.fps_rows(pos, counts, fps_counts(counts, ratio), centroid_start=True)
+    assert got.tolist() == naive_fps(pos, batch, ratio, start_fn=centroid)

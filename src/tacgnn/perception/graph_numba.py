@@ -1,0 +1,154 @@
+"""kNN tables and farthest point sampling on flat node lists, compiled with numba.
+
+Why: TacGNN's graphs are tiny (tens of activated taxels) and rebuilt every forward. In
+torch, each kNN or FPS step is a batched op over all graphs, but FPS needs one step per
+sample and every op pays a fixed dispatch cost; most of a forward went into these small
+ops. Here one compiled pass per layer walks the graphs one by one (``prange``: both cores)
+and writes exactly what the network consumes: a ``(K, V)`` table of neighbour rows and the
+FPS order as flat rows. Distances are float32 ``(dx^2 + dy^2) + dz^2``, as in the exact
+torch path (:mod:`tacgnn.perception.graph_ops`); ties go to the lower index.
+
+The torch versions in :mod:`graph_ops` stay the reference (and the fallback without numba);
+the tests check both against brute force.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+_kernels = None
+PARALLEL = False  # prange over graphs measured slower here (threads compete with torch's)
+
+
+def available() -> bool:
+    return _compile() is not None
+
+
+def _compile():
+    """Compile the kernels once per process (cached on disk by numba); None without numba."""
+    global _kernels
+    if _kernels is not None:
+        return _kernels or None
+    try:
+        import numba
+    except ImportError:
+        _kernels = False
+        return None
+    jit = numba.njit(cache=True, nogil=True, parallel=PARALLEL)
+
+    @jit
+    def knn_table(xt, ptr, K, loop):  # pragma: no cover (compiled)
+        V = xt.shape[1]
+        out = np.empty((K, V), np.int64)
+        for g in numba.prange(ptr.shape[0] - 1):
+            lo, hi = ptr[g], ptr[g + 1]
+            n = hi - lo
+            xs, ys, zs = xt[0, lo:hi], xt[1, lo:hi], xt[2, lo:hi]
+            row = np.empty(n, np.float32)
+            best_d = np.empty(K, np.float32)  # the K nearest so far, ascending (K <= k)
+            best_j = np.empty(K, np.int64)
+            for i in range(n):
+                for j in range(n):  # a row of distances: a loop the compiler vectorises
+                    d0, d1, d2 = xs[j] - xs[i], ys[j] - ys[i], zs[j] - zs[i]
+                    row[j] = (d0 * d0 + d1 * d1) + d2 * d2
+                found = 0
+                for j in range(n):
+                    if j == i and not loop:
+                        continue
+                    d = row[j]
+                    if found == K:
+                        if d >= best_d[K - 1]:  # the common case once K are found
+                            continue
+                        s = K - 1
+                    else:
+                        s = found
+                        found += 1
+                    while s > 0 and best_d[s - 1] > d:  # strict: on equal distances the lower j stays first
+                        best_d[s], best_j[s] = best_d[s - 1], best_j[s - 1]
+                        s -= 1
+                    best_d[s], best_j[s] = d, j
+                for s in range(K):
+                    if found == 0:  # a lone node is its own neighbour
+                        out[s, lo + i] = lo + i
+                    else:  # missing slots repeat the nearest: the max over them is unchanged
+                        out[s, lo + i] = lo + (best_j[s] if s < found else best_j[0])
+        return out
+
+    @jit
+    def fps_order(xt, ptr, m, centroid_start):  # pragma: no cover (compiled)
+        """Per graph, the first m[g] FPS picks as flat rows, graph after graph."""
+        B = ptr.shape[0] - 1
+        start_out = np.zeros(B + 1, np.int64)
+        for g in range(B):
+            start_out[g + 1] = start_out[g] + m[g]
+        out = np.empty(start_out[B], np.int64)
+        for g in numba.prange(B):
+            lo, hi = ptr[g], ptr[g + 1]
+            n = hi - lo
+            if m[g] == 0:
+                continue
+            xs, ys, zs = xt[0, lo:hi], xt[1, lo:hi], xt[2, lo:hi]
+            last = 0
+            if centroid_start:  # the node farthest from the centroid: independent of node order
+                c0, c1, c2 = xs.sum() / n, ys.sum() / n, zs.sum() / n
+                far = np.float32(-1.0)
+                for j in range(n):
+                    d0, d1, d2 = xs[j] - c0, ys[j] - c1, zs[j] - c2
+                    d = (d0 * d0 + d1 * d1) + d2 * d2
+                    if d > far:
+                        far, last = d, j
+            mind = np.full(n, np.inf, np.float32)  # squared distance to the chosen set
+            out[start_out[g]] = lo + last
+            for t in range(1, m[g]):
+                mind[last] = -np.inf  # chosen: never picked again, even if duplicated
+                px, py, pz = xs[last], ys[last], zs[last]
+                for j in range(n):
+                    d0, d1, d2 = xs[j] - px, ys[j] - py, zs[j] - pz
+                    mind[j] = min(mind[j], (d0 * d0 + d1 * d1) + d2 * d2)
+                best, best_d = 0, mind[0]
+                for j in range(1, n):
+                    if mind[j] > best_d:  # strict: the lowest index wins ties
+                        best, best_d = j, mind[j]
+                last = best
+                out[start_out[g] + t] = lo + last
+        return out
+
+    _kernels = (knn_table, fps_order)
+    return _kernels
+
+
+def _coordinates(x: Tensor) -> np.ndarray:
+    """(3, V) float32: one contiguous row per axis."""
+    return np.ascontiguousarray(x.detach().numpy().T, np.float32)
+
+
+def _ptr(counts: Tensor) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(counts.numpy())]).astype(np.int64)
+
+
+def knn_table(x: Tensor, counts: Tensor, k: int, loop: bool = False) -> Tensor:
+    """``(K, V)`` flat rows of each node's k nearest nodes of its graph, nearest first.
+
+    ``K = max(1, min(k, N - 1 + loop))`` for the largest graph N; slots a small graph
+    cannot fill repeat its nearest neighbour, a lone node gets itself (as
+    ``TacGNN._neighbours``). ``x (V, 3)`` float32 on CPU, graphs as consecutive rows of
+    ``counts (B,)`` nodes.
+    """
+    knn, _ = _compile()
+    n_max = int(counts.max()) if len(counts) else 0
+    K = max(1, min(k, n_max if loop else n_max - 1))
+    table = knn(_coordinates(x), _ptr(counts), K, loop)
+    return torch.from_numpy(table)
+
+
+def fps_rows(x: Tensor, counts: Tensor, num_samples: Tensor, centroid_start: bool = True) -> Tensor:
+    """Flat rows of the first ``num_samples[g]`` FPS picks of every graph, graph after graph.
+
+    Start: the node farthest from the centroid (``centroid_start``) or the first node.
+    """
+    _, fps = _compile()
+    rows = fps(_coordinates(x), _ptr(counts),
+               num_samples.numpy().astype(np.int64), centroid_start)
+    return torch.from_numpy(rows)
