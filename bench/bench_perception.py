@@ -3,7 +3,8 @@
 Prints:
   * TacGNN-32 inference graphs/s at batch 256, ~60 activated taxels per frame,
     with 2 and 1 torch threads (target >= 20,000 graphs/s), first with the
-    default glibc allocator, then after ``keep_freed_memory()``;
+    default glibc allocator, then after ``keep_freed_memory()``, then with the
+    graphs built by the torch graph ops instead of the numba kernels;
   * MLP / CNN / GCN inference graphs/s at batch 256;
   * TacGNN-32 training time for 10 epochs x 25,000 samples at batch 32 with
     Adam (target < 2 min), 1 thread unless ``--train-threads 1 2``. By
@@ -114,14 +115,16 @@ def main() -> None:
     if os.getloadavg()[0] > 0.5:
         print("NOTE: other processes are using the CPUs; 2-thread numbers mostly measure waiting for them")
     tacgnn = build_model(PerceptionModelConfig(name="tacgnn", channels=32))
-    for label in ("default glibc malloc", "after keep_freed_memory()"):
+    for label in ("default glibc malloc", "after keep_freed_memory()", "torch graph ops (no numba)"):
         if label.startswith("after"):
             keep_freed_memory()
+        tacgnn.use_compiled_graphs = not label.startswith("torch")
         for threads in (2, 1):
             torch.set_num_threads(threads)
             best, med = graphs_per_second(tacgnn, readings, positions)
             print(f"TacGNN-32 inference, batch 256, {threads} thread(s), {label}: "
                   f"{best:,.0f} graphs/s best round (median {med:,.0f}; load {load()})")
+    tacgnn.use_compiled_graphs = True
     # the settings `tacgnn train-perception` starts from (log force input, jumping-knowledge readout)
     ours = build_model(default_model_config(name="tacgnn", channels=32))
     ours_joints = build_model(default_model_config(name="tacgnn", channels=32, joint_inputs=16))
