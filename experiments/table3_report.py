@@ -1,0 +1,86 @@
+"""Table III from the evaluations that experiments/table3.sh wrote, beside the paper's.
+
+    .venv/bin/python experiments/table3_report.py [--iterations 800] [--out docs/table3.md]
+
+Reads results/blind_<model>_hard_s<seed>_model_<iterations>.json (and the ground-truth
+teacher's results/gt_hard_s<seed>_model_002000.json), pools the episodes of all seeds of a
+row into one success rate with a Wilson 95 % interval, and lists the seeds' own rates
+beside it, so the spread over seeds and the uncertainty from the episodes both show.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+from tacgnn.learning.evaluate import wilson_interval
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = ("simple", "middle", "hard")
+PAPER = {  # success %, mean steps to finish; Simple / Middle / Hard
+    "mlp": ((52.44, 45.57, 41.78), (76, 77, 79)),
+    "cnn": ((42.71, 63.75, 50.88), (147, 133, 119)),
+    "gcn": ((70.62, 64.51, 55.11), (100, 87, 103)),
+    "tacgnn": ((94.71, 88.57, 79.78), (82, 86, 94)),
+}
+ROWS = [("mlp", "MLP"), ("cnn", "CNN"), ("gcn", "GCN"), ("tacgnn", "TacGNN-32"),
+        ("tacgnn_joints", "TacGNN-32 + joint angles (beyond the paper)")]
+
+
+def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[dict]]:
+    """Seed -> the three task records of every evaluated run `<prefix>_s<seed>_model_<iterations>`."""
+    found = {}
+    pattern = re.compile(rf"{re.escape(run_prefix)}_s(\d+)_model_{iterations:06d}\.json")
+    for path in sorted(results.glob("*.json")):
+        if m := pattern.fullmatch(path.name):
+            found[int(m.group(1))] = json.loads(path.read_text())
+    return found
+
+
+def pooled_cells(per_seed: dict[int, list[dict]]) -> list[str]:
+    """One markdown cell per task: pooled rate [Wilson CI] (seed rates), mean steps."""
+    cells = []
+    for task in TASKS:
+        records = [r for recs in per_seed.values() for r in recs if r["task"] == task]
+        if not records:
+            cells.append("not run")
+            continue
+        n = sum(r["episodes"] for r in records)
+        wins = sum(round(r["success_rate"] * r["episodes"]) for r in records)
+        lo, hi = wilson_interval(wins, n)
+        steps = sum(r["mean_steps_to_success"] * round(r["success_rate"] * r["episodes"]) for r in records) / max(wins, 1)
+        seeds = " / ".join(f"{100 * r['success_rate']:.1f}" for r in records)
+        cells.append(f"**{100 * wins / n:.1f}** [{100 * lo:.1f}-{100 * hi:.1f}] ({seeds}); {steps:.0f} steps")
+    return cells
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--iterations", type=int, default=800, help="PPO iterations of the blind runs to report")
+    ap.add_argument("--results", default=str(ROOT / "results"))
+    ap.add_argument("--out", default=str(ROOT / "docs" / "table3.md"))
+    args = ap.parse_args()
+    results = Path(args.results)
+    lines = ["# Table III: blind Baoding, success rate by perception model", "",
+             f"Made by `experiments/table3.sh MODEL SEED {args.iterations}` per row and seed, then "
+             f"`.venv/bin/python experiments/table3_report.py --iterations {args.iterations}`. "
+             "Each cell: success % pooled over all episodes of all seeds, [Wilson 95 % interval], "
+             "(each seed's rate), mean steps to success. The paper's figures follow in the same row.", "",
+             "| perception | Simple | Middle | Hard | paper Simple / Middle / Hard | paper steps |",
+             "|---|---|---|---|---|---|"]
+    teacher = collect(results, "gt_hard", 2000)
+    lines.append("| ground truth (teacher, Hard fine-tune) | " + " | ".join(pooled_cells(teacher)) + " | - | - |")
+    for key, label in ROWS:
+        per_seed = collect(results, f"blind_{key}_hard", args.iterations)
+        paper = PAPER.get(key)
+        paper_cells = (" / ".join(map(str, paper[0])), " / ".join(map(str, paper[1]))) if paper else ("-", "-")
+        lines.append(f"| {label} | " + " | ".join(pooled_cells(per_seed)) + f" | {paper_cells[0]} | {paper_cells[1]} |")
+    text = "\n".join(lines) + "\n"
+    Path(args.out).write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
