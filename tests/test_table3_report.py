@@ -1,0 +1,50 @@
+"""experiments/table3_report.py: episodes of all seeds pooled into one rate and interval."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+from tacgnn.learning.evaluate import wilson_interval
+
+SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "table3_report.py"
+
+
+@pytest.fixture(scope="module")
+def report():
+    spec = importlib.util.spec_from_file_location("table3_report", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _write(path, rates, steps=30.0, episodes=100):
+    path.write_text(json.dumps([{"task": t, "episodes": episodes, "success_rate": r, "mean_steps_to_success": steps}
+                                for t, r in zip(("simple", "middle", "hard"), rates)]))
+
+
+def test_seeds_pool_into_one_rate_with_a_wilson_interval(report, tmp_path):
+    _write(tmp_path / "blind_gcn_hard_s0_model_000800.json", (0.9, 0.8, 0.5), steps=20.0)
+    _write(tmp_path / "blind_gcn_hard_s1_model_000800.json", (0.7, 0.6, 0.3), steps=40.0)
+    _write(tmp_path / "blind_gcn_hard_s2_model_000400.json", (0.0, 0.0, 0.0))  # other iterations: ignored
+    per_seed = report.collect(tmp_path, "blind_gcn_hard", 800)
+    assert sorted(per_seed) == [0, 1]
+    simple = report.pooled_cells(per_seed)[0]
+    lo, hi = wilson_interval(160, 200)
+    # 160 of 200 episodes; steps weighted by successes: (90 * 20 + 70 * 40) / 160 = 28.75
+    assert simple == f"**80.0** [{100 * lo:.1f}-{100 * hi:.1f}] (90.0 / 70.0); 29 steps"
+
+
+def test_missing_rows_read_not_run(report, tmp_path):
+    out = tmp_path / "t3.md"
+    _write(tmp_path / "blind_tacgnn_hard_s0_model_000800.json", (0.95, 0.9, 0.8))
+    import sys
+    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(tmp_path), "--out", str(out)]
+    try:
+        report.main()
+    finally:
+        sys.argv = argv
+    rows = {line.split(" | ")[0]: line for line in out.read_text().splitlines() if line.startswith("| ")}
+    assert "**95.0**" in rows["| TacGNN-32"] and "94.71 / 88.57 / 79.78" in rows["| TacGNN-32"]
+    assert rows["| MLP"].count("not run") == 3
