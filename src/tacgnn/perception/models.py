@@ -495,10 +495,10 @@ class TacGNN(PerceptionModel):
                     if not sampled:
                         keep = graph_numba.fps_rows(x, counts, kept, self.fps_start == "centroid")
                         sampled = True
-                    else:  # FPS of an FPS-ordered set from its first node = a prefix
-                        first = torch.repeat_interleave(torch.cumsum(counts, 0) - counts, kept)
-                        rank = torch.arange(len(first)) - torch.repeat_interleave(torch.cumsum(kept, 0) - kept, kept)
-                        keep = first + rank
+                    else:  # FPS of an FPS-ordered set from its first node = a prefix:
+                        # kept row r of graph g is input row r + (first input row - first kept row)
+                        shift = (torch.cumsum(counts, 0) - counts) - (torch.cumsum(kept, 0) - kept)
+                        keep = torch.arange(int(kept.sum())) + torch.repeat_interleave(shift, kept)
             h_new = conv(h, x, nbr)
             h = h_new + h if self.residual and h.shape == h_new.shape else h_new
             if self.pool != "last" and l < len(self.convs) - 1:
