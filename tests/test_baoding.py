@@ -45,12 +45,15 @@ def test_tactile_observation_is_the_raw_skin():
 def test_balls_rest_on_a_still_hand_for_200_steps():
     env = make(4, max_episode_steps=400)
     env.reset(seed=1)
-    for _ in range(200):
+    for t in range(200):
         _, _, terminated, truncated, info = env.step(hold(env))
         assert not (terminated | truncated).any()
+        if t == 49:
+            settled = info["angle_deg"].copy()
     height = (info["ball_pos"] - env.palm_centre) @ env.palm_axes[:, 0]
     assert np.all(height > 0.02)  # still above the palm, resting on it
-    assert np.abs(info["angle_deg"]).max() < 20
+    assert np.abs(settled).max() < 45  # the dropped balls roll into place in the first 50 steps ...
+    assert np.abs(info["angle_deg"] - settled).max() < 2  # ... and then stay there
 
 
 def test_check_env_single():

@@ -22,8 +22,10 @@ def test_baoding_dataset_has_the_documented_fields(tmp_path):
     assert data["tactile"].shape == (600, 653) and data["taxel_pos"].shape == (600, 653, 3)
     assert data["ball_pos"].shape == (600, 2, 3) and data["joint_pos"].shape == (600, 16)
     assert ((data["tactile"] > 0).sum(1) > 0).mean() > 0.9  # balls touch the skin
-    # taxel positions near the hand, balls above the palm
-    assert np.abs(data["taxel_pos"]).max() < 0.25 and (data["ball_pos"][..., 2] > 0).all()
+    # taxel positions near the hand; balls on it (a ball rolling off the edge may dip a little
+    # below the hand's origin before the fall rule ends its episode)
+    assert np.abs(data["taxel_pos"]).max() < 0.25 and (data["ball_pos"][..., 2] > -0.01).all()
+    assert np.median(data["ball_pos"][..., 2]) > 0.02
     with pytest.raises(DatasetError, match="num_taxels"):
         load(tmp_path / "ds", expect={"num_taxels": 500})
 

@@ -8,7 +8,7 @@ import pytest
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, compile_with_skin, hand_scene
-from tacgnn.sim.tactile import SLOT_SIZE, TactileModel, _CandidateGrid, standard_normal_float32
+from tacgnn.sim.tactile import SLOT_SIZE, TactileModel, _CandidateGrid, counter_normal, draw_step_seed
 
 
 def reference_readings(tactile, sensordata, xpos, xmat, rng=None):
@@ -141,13 +141,25 @@ def test_threshold_and_noise_match_the_reference():
     tol = float32_tolerance(tactile, state[0])
     near_threshold = np.abs(ref - tactile.layout.threshold) < tol  # may round either way
     np.testing.assert_allclose(clean[~near_threshold], ref[~near_threshold], rtol=1e-5, atol=tol)
-    # noise: the same draws, in (env, taxel) order over the active readings
+    # noise: each active reading times 1 + noise * the counter-based draw of its flat index
     noisy = tactile.readings(*state, np.random.default_rng(5))
     active = clean > 0
-    draws = standard_normal_float32(np.random.default_rng(5), active.sum())
+    draws = counter_normal(draw_step_seed(np.random.default_rng(5)), np.flatnonzero(active))
     factor = 1.0 + tactile.layout.noise * draws
     np.testing.assert_array_equal(noisy[active], np.maximum(clean[active] * factor, 0.0))
     assert not noisy[~active].any()
+
+
+def test_noisy_readings_of_both_paths_agree():
+    """The same seed gives the same noisy readings on either path (counter-based draws)."""
+    tactile = _tactile(default_skin())
+    state = random_state(tactile, num_envs=5, seed=12)
+    compiled = tactile.readings(*state, np.random.default_rng(9))
+    tactile.use_compiled = False
+    numpy_path = tactile.readings(*state, np.random.default_rng(9))
+    np.testing.assert_allclose(compiled, numpy_path, rtol=1e-5, atol=1e-6)
+    assert (compiled > 0).sum() > 10
+    assert not np.array_equal(compiled, tactile.readings(*state))  # the noise is on
 
 
 def test_another_layout_matches_the_reference():
@@ -169,8 +181,13 @@ def test_positions_match_the_rigid_transform(tactile):
     np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-6)
 
 
-def test_table_normal_samples_are_standard_normal():
-    x = standard_normal_float32(np.random.default_rng(0), 400_000).astype(float)
+def test_counter_normal_draws_are_independent_standard_normals():
+    seed = draw_step_seed(np.random.default_rng(0))
+    x = counter_normal(seed, np.arange(400_000)).astype(float)
+    # neighbouring taxels, and the same taxels in the next step, are uncorrelated
+    assert abs(np.corrcoef(x[:-1], x[1:])[0, 1]) < 0.01
+    y = counter_normal(draw_step_seed(np.random.default_rng(1)), np.arange(400_000)).astype(float)
+    assert abs(np.corrcoef(x, y)[0, 1]) < 0.01
     assert abs(x.mean()) < 0.01 and abs(x.std() - 1.0) < 0.01
     # quantiles of N(0, 1): 2.5 % and 97.5 % at -+1.96, 16 % at -1
     np.testing.assert_allclose(np.quantile(x, [0.025, 0.16, 0.5, 0.84, 0.975]),

@@ -167,6 +167,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.ball_dof_adr = np.array([m.joint(f"{b}_free").dofadr[0] for b in BALLS])
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
+        self._joint_span = self.joint_high - self.joint_low
+        self._spawn = np.array(cfg.spawn_offsets, dtype=np.float64)  # (2, 3) ball centres at reset
         self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
 
         n = cfg.num_envs
@@ -176,7 +178,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.hold_count = np.full(n, -1, np.int64)  # >= 0 while holding after reaching the angle
         self.last_action = np.zeros((n, NUM_JOINTS))
         self.perceived_balls = np.zeros((n, 6))  # last perceived positions, identities tracked
-        self._rng = np.random.default_rng(cfg.seed)
+        self._seed(cfg.seed)
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -198,11 +200,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
     def ball_positions(self) -> np.ndarray:
         """(N, 2, 3) ball centres relative to the hand origin (world axes, m)."""
-        return self.sim.xpos[:, self.ball_body].copy()
+        return self.sim.xpos[:, self.ball_body]  # a copy (fancy index)
 
     def _object_obs(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> np.ndarray:
         mode = self.config.obs_mode
-        balls = self.ball_positions()[ids].reshape(len(ids), 6)
+        balls = self.ball_positions()[ids].reshape(-1, 6)
         if mode == "groundtruth":
             return balls
         if mode == "no_perception":
@@ -215,11 +217,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             if self.perception is None:
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
             if getattr(self.perception, "joint_inputs", 0):  # a model that reads the hand's pose too
-                joints = self.sim.qpos[np.ix_(ids, self.joint_qpos_adr)]
+                joints = self.sim.qpos[ids][:, self.joint_qpos_adr]
                 pred = self.perception(tactile, taxel_pos, joints)
             else:
                 pred = self.perception(tactile, taxel_pos)
-            pred = np.asarray(pred, dtype=np.float64).reshape(len(ids), 6)
+            pred = np.asarray(pred, dtype=np.float64).reshape(-1, 6)
             if self.config.track_balls:
                 pred = track_ball_identities(pred, self.perceived_balls[ids])
             self.perceived_balls[ids] = pred
@@ -257,30 +259,57 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return readings, self.tactile.positions(sim.xpos[ids], sim.xmat[ids])
 
     # --- reset -------------------------------------------------------------------------
+    # --- random streams ----------------------------------------------------------------
+    def _seed(self, seed: int | None) -> None:
+        """One stream for the whole batch (skin noise seeds, observation noise: a fixed
+        number of draws per step) and one per env (resets, randomisation, kicks): an env
+        that resets or diverges never shifts another env's draws."""
+        main, *envs = np.random.SeedSequence(seed).spawn(self.num_envs + 1)
+        self._rng = np.random.default_rng(main)
+        self._env_rngs = [np.random.default_rng(s) for s in envs]
+
+    def _env_draws(self, ids: np.ndarray, size: int, normal: bool = False) -> np.ndarray:
+        """(len(ids), size) uniforms in [0, 1) or standard normals, each row from its env's stream."""
+        draw = (lambda g: g.standard_normal(size)) if normal else (lambda g: g.random(size))
+        return np.array([draw(self._env_rngs[i]) for i in ids]).reshape(len(ids), size)
+
+    def rng_state(self) -> dict:
+        """The random streams' states (plain dicts), for checkpoints that resume bit for bit."""
+        return {"main": self._rng.bit_generator.state, "envs": [g.bit_generator.state for g in self._env_rngs]}
+
+    def set_rng_state(self, state: dict) -> None:
+        if len(state["envs"]) != self.num_envs:
+            raise ValueError(f"saved random state has {len(state['envs'])} env streams, this env has {self.num_envs}")
+        self._rng.bit_generator.state = state["main"]
+        for g, s in zip(self._env_rngs, state["envs"]):
+            g.bit_generator.state = s
+
+    # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            self._seed(seed)
         ids = np.arange(self.num_envs)
         self._reset_envs(ids)
         tactile, taxel_pos = self._skin(ids)
         return self._observe(ids, tactile, taxel_pos), {}
 
     def _reset_envs(self, ids: np.ndarray) -> None:
-        cfg, sim, rng = self.config, self.sim, self._rng
+        cfg, sim = self.config, self.sim
         if len(ids) == 0:
             return
         sim.reset(ids)
+        k = NUM_JOINTS + 2 * len(BALLS)  # joint noise, then the balls' x, y shifts
+        u = self._env_draws(ids, k + (RANDOMIZED_DRAWS if cfg.randomization.enabled else 0))
         if cfg.randomization.enabled:
-            randomize(self, ids, rng)
-        q0 = self.initial_ctrl + rng.uniform(-cfg.joint_noise, cfg.joint_noise, (len(ids), NUM_JOINTS))
+            randomize(self, ids, u[:, k:])
+        q0 = self.initial_ctrl + cfg.joint_noise * (2 * u[:, :NUM_JOINTS] - 1)
         q0 = np.clip(q0, self.joint_low, self.joint_high)
         qpos = sim.qpos[ids]
         qpos[:, self.joint_qpos_adr] = q0
-        for b, offset in enumerate(cfg.spawn_offsets):
-            pos = np.asarray(offset) + np.concatenate(
-                [rng.uniform(-cfg.spawn_noise, cfg.spawn_noise, (len(ids), 2)), np.zeros((len(ids), 1))], 1)
-            adr = self.ball_qpos_adr[b]
-            qpos[:, adr:adr + 3] = pos
+        shift = cfg.spawn_noise * (2 * u[:, NUM_JOINTS:k] - 1).reshape(-1, len(BALLS), 2)
+        for b, adr in enumerate(self.ball_qpos_adr):
+            qpos[:, adr:adr + 3] = self._spawn[b]
+            qpos[:, adr:adr + 2] += shift[:, b]
             qpos[:, adr + 3:adr + 7] = (1.0, 0.0, 0.0, 0.0)
         sim.qpos[ids] = qpos
         sim.qvel[ids] = 0.0
@@ -292,7 +321,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.angle[ids] = 0.0
         self.vec_angle[ids] = self._ball_vector_angle(ids)
         self.hold_count[ids] = -1
-        self.perceived_balls[ids] = np.concatenate(cfg.spawn_offsets)  # where the balls are put
+        self.perceived_balls[ids] = self._spawn.ravel()  # where the balls are put
 
     # --- step --------------------------------------------------------------------------
     def step(self, actions: np.ndarray):
@@ -303,13 +332,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if not np.isfinite(actions).all():
             raise ValueError(f"non-finite actions in envs {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
         actions = np.clip(actions, -1.0, 1.0)
-        sim.ctrl[:] = self.action_to_ctrl(actions)
+        sim.ctrl[:] = self.joint_low + 0.5 * (actions + 1.0) * self._joint_span  # action_to_ctrl, clipped above
         self._apply_disturbances()
         diverged = sim.step(self.substeps)
         self.episode_steps += 1
         self.last_action[:] = actions
 
-        all_ids = np.arange(self.num_envs)
+        all_ids = slice(None)  # a slice: rows as views, not copies
         if diverged.any():  # keep NaN out of everything computed below; these envs reset
             self._scrub(diverged)
         tactile, taxel_pos = self._skin(all_ids)
@@ -368,11 +397,10 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         ids = np.flatnonzero(kick)
         if len(ids) == 0:
             return
-        for body in self.ball_body:
-            direction = self._rng.standard_normal((len(ids), 3))
-            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-            magnitude = self._rng.normal(0.0, cfg.disturbance_std, (len(ids), 1))
-            xfrc[ids, body, :3] = direction * magnitude
+        draws = self._env_draws(ids, 4 * len(self.ball_body), normal=True).reshape(len(ids), -1, 4)
+        for b, body in enumerate(self.ball_body):
+            direction = draws[:, b, :3] / np.linalg.norm(draws[:, b, :3], axis=1, keepdims=True)
+            xfrc[ids, body, :3] = direction * (cfg.disturbance_std * draws[:, b, 3:])
 
     # --- task rules --------------------------------------------------------------------
     def _ball_vector_angle(self, ids: np.ndarray) -> np.ndarray:
@@ -392,7 +420,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def _fallen(self, balls: np.ndarray) -> np.ndarray:
         rel = (balls - self.palm_centre) @ self.palm_axes  # (N, 2, 3) palm coordinates
         lo, hi = self.config.fall_height
-        out = (rel[..., 0] < lo) | (rel[..., 0] > hi) | (np.linalg.norm(rel[..., 1:], axis=-1) > self.config.fall_radius)
+        across = rel[..., 1] ** 2 + rel[..., 2] ** 2
+        out = (rel[..., 0] < lo) | (rel[..., 0] > hi) | (across > self.config.fall_radius**2)
         return out.any(axis=1)
 
     def _success(self, reached: np.ndarray, fall: np.ndarray) -> np.ndarray:
@@ -468,21 +497,23 @@ def track_ball_identities(pred: np.ndarray, previous: np.ndarray) -> np.ndarray:
     return np.where(swap[:, None], swapped, pred)
 
 
-def randomize(env: BaodingEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
-    """Draw the physics of envs `ids` from the config's randomisation ranges."""
+RANDOMIZED_DRAWS = len(BALLS) + 2 + 2 * NUM_JOINTS  # uniforms per reset: ball masses, friction, gravity, gains, damping
+
+
+def randomize(env: BaodingEnv, ids: np.ndarray, u: np.ndarray) -> None:
+    """Set the physics of envs `ids` from uniforms `u` (len(ids), RANDOMIZED_DRAWS) in [0, 1),
+    mapped onto the config's randomisation ranges."""
     r, cfg, sim, model = env.config.randomization, env.config, env.sim, env.model
-    n = len(ids)
-    mass = sim.expand("body_mass")
-    inertia = sim.expand("body_inertia")
-    m = rng.uniform(*r.ball_mass, (n, len(env.ball_body)))
-    mass[np.ix_(ids, env.ball_body)] = m
-    inertia[np.ix_(ids, env.ball_body)] = (0.4 * cfg.ball_radius**2 * m)[..., None]
-    friction = sim.expand("geom_friction")
-    friction[ids, :, 0] = model.geom_friction[:, 0] * rng.uniform(*r.friction_scale, (n, 1))
-    sim.expand("opt.gravity")[ids] = np.stack(
-        [np.zeros(n), np.zeros(n), -rng.uniform(*r.gravity, n)], axis=1)
-    kp = cfg.hand.stiffness * rng.uniform(*r.stiffness_scale, (n, NUM_JOINTS))
+    nb = len(env.ball_body)
+    columns = np.cumsum([0, nb, 1, 1, NUM_JOINTS, NUM_JOINTS])
+    ball_mass, friction_scale, gravity, stiffness_scale, damping_scale = (
+        lo + (hi - lo) * u[:, a:b] for (lo, hi), a, b in zip(
+            (r.ball_mass, r.friction_scale, r.gravity, r.stiffness_scale, r.damping_scale), columns[:-1], columns[1:]))
+    sim.expand("body_mass")[np.ix_(ids, env.ball_body)] = ball_mass
+    sim.expand("body_inertia")[np.ix_(ids, env.ball_body)] = (0.4 * cfg.ball_radius**2 * ball_mass)[..., None]
+    sim.expand("geom_friction")[ids, :, 0] = model.geom_friction[:, 0] * friction_scale
+    sim.expand("opt.gravity")[ids] = np.concatenate([np.zeros((len(ids), 2)), -gravity], axis=1)
+    kp = cfg.hand.stiffness * stiffness_scale
     sim.expand("actuator_gainprm")[ids, :, 0] = kp
     sim.expand("actuator_biasprm")[ids, :, 1] = -kp
-    damping = sim.expand("dof_damping")
-    damping[np.ix_(ids, env.joint_dof_adr)] = cfg.hand.damping * rng.uniform(*r.damping_scale, (n, NUM_JOINTS))
+    sim.expand("dof_damping")[np.ix_(ids, env.joint_dof_adr)] = cfg.hand.damping * damping_scale

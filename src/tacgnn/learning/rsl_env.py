@@ -149,7 +149,7 @@ class RslBaodingEnv(VecEnv):
             "sim_state": torch.from_numpy(batch.state.copy()),
             "model_fields": fields,
             "buffers": {name: torch.from_numpy(getattr(self.env, name).copy()) for name in _ENV_BUFFERS},
-            "rng": self.env._rng.bit_generator.state,  # plain dict of ints and strings
+            "rng": self.env.rng_state(),  # plain dicts of ints and strings
             "obs": self._obs["policy"].clone(),
             **({"critic_obs": self._obs["critic"].clone()} if self.privileged_critic else {}),
             "episode_terms": {k: torch.from_numpy(v.copy()) for k, v in self._episode_terms.items()},
@@ -166,7 +166,7 @@ class RslBaodingEnv(VecEnv):
             self.env.sim.expand(name)[...] = values.numpy()
         for name, values in state["buffers"].items():
             getattr(self.env, name)[...] = values.numpy()
-        self.env._rng.bit_generator.state = state["rng"]
+        self.env.set_rng_state(state["rng"])
         if self.privileged_critic and "critic_obs" not in state:
             raise ValueError("saved env state has no critic observations: it was trained without a privileged critic")
         critic = state["critic_obs"].numpy().copy() if self.privileged_critic else None
