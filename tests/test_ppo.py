@@ -73,6 +73,27 @@ def test_adapter_termination_is_done_but_not_time_out():
     assert extras["log"]["Episode/fall_rate"].tolist() == [1, 1]
 
 
+def test_adapter_stops_on_an_infinite_observation():
+    """A perception that returns Inf for env 1 stops the step with the env named (rsl_rl's own
+    check catches NaN only), before anything reaches the normalisers."""
+    calls = []
+
+    def perception(tactile, taxel_pos):
+        out = np.zeros((len(tactile), 6))
+        out[1, 2] = np.inf if calls else 0.0  # finite at reset, Inf from the first step on
+        calls.append(1)
+        return out
+
+    cfg = BaodingConfig(num_envs=3, obs_mode="perceived", track_balls=False)
+    env = RslBaodingEnv(cfg, perception=perception)
+    with pytest.raises(FloatingPointError, match=r"observation in envs \[1\].*columns \[34\]"):
+        env.step(torch.zeros(3, 16))
+    calls.clear()
+    calls.append(1)  # Inf already at reset: the adapter refuses to start
+    with pytest.raises(FloatingPointError, match="envs \\[1\\]"):
+        RslBaodingEnv(cfg, perception=perception)
+
+
 def test_adapter_rejects_dict_observations():
     with pytest.raises(ValueError, match="tactile"):
         RslBaodingEnv(BaodingConfig(num_envs=1, obs_mode="tactile"))

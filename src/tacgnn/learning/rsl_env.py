@@ -70,6 +70,7 @@ class RslBaodingEnv(VecEnv):
         self.bootstrap_time_outs = bootstrap_time_outs
         self.privileged_critic = privileged_critic
         obs, _ = self.env.reset(seed=config.seed)
+        _check_finite(obs, np.zeros(self.num_envs))
         self._obs = self._wrap(obs)
         # Running sums of each reward term over the current episode, (N,) per term (env units).
         self._episode_terms: dict[str, np.ndarray] = {}
@@ -93,6 +94,7 @@ class RslBaodingEnv(VecEnv):
         if self.on_step is not None:  # e.g. the online perception records the skin frames
             self.on_step(info)
         done = terminated | truncated
+        _check_finite(obs, reward)
         self._obs = self._wrap(obs)
         rewards = torch.from_numpy(reward * np.float32(self.reward_scale))
         extras: dict[str, Any] = {"log": self._episode_log(info, done)}
@@ -175,3 +177,17 @@ class RslBaodingEnv(VecEnv):
         # Derived fields (xpos, sensors) stay stale until the next step recomputes them; the
         # step reads none of them before it does, and calling forward() here would not be
         # guaranteed to leave the state (warm start) untouched.
+
+
+def _check_finite(obs: np.ndarray, reward: np.ndarray) -> None:
+    """Stop before a NaN or Inf reaches the normalisers and the rollout buffer.
+
+    The env keeps its own state finite (diverged envs are reset), but an observation can
+    still carry a perception model's output; rsl_rl's own check sees NaN, not Inf.
+    """
+    bad_obs, bad_reward = ~np.isfinite(obs).all(1), ~np.isfinite(reward)
+    if bad_obs.any() or bad_reward.any():
+        envs = np.flatnonzero(bad_obs | bad_reward).tolist()
+        columns = np.flatnonzero(~np.isfinite(obs).all(0)).tolist()
+        raise FloatingPointError(f"non-finite {'observation' if bad_obs.any() else 'reward'} in envs {envs} "
+                                 f"(observation columns {columns}); the policy was not updated with it")
