@@ -268,3 +268,19 @@ def test_perceived_balls_keep_their_identity(track):
         assert not wrong.any()
     else:
         assert wrong.mean() > 0.3  # without tracking the order is a coin flip
+
+
+def test_random_state_round_trip_and_older_checkpoints(caplog):
+    env = make(3)
+    env.reset(seed=4)
+    saved = env.rng_state()
+    ids = np.arange(3)
+    draws = env._env_draws(ids, 5), env._rng.random(4)
+    env.reset(seed=99)
+    env.set_rng_state(saved)
+    assert np.array_equal(env._env_draws(ids, 5), draws[0]) and np.array_equal(env._rng.random(4), draws[1])
+    with pytest.raises(ValueError, match="3 env streams"):
+        make(2).set_rng_state(saved)
+    env.set_rng_state(saved["main"])  # one generator, as saved before per-env streams
+    assert "not bit-for-bit" in caplog.text
+    assert np.array_equal(env._rng.random(4), draws[1])

@@ -22,6 +22,7 @@ input and its label match exactly.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Literal
 
@@ -34,6 +35,8 @@ from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
 from tacgnn.hand.allegro import FINGER_RANGES, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
+
+log = logging.getLogger(__name__)
 
 ObsMode = Literal["groundtruth", "no_perception", "finger_torque", "noise_2", "noise_4",
                   "noise_10", "perceived", "tactile"]
@@ -278,6 +281,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return {"main": self._rng.bit_generator.state, "envs": [g.bit_generator.state for g in self._env_rngs]}
 
     def set_rng_state(self, state: dict) -> None:
+        if "envs" not in state:  # a checkpoint from before the per-env streams: one generator
+            log.warning("checkpoint has one random stream (older version): the env streams restart "
+                        "from the seed, so this resume is not bit-for-bit")
+            self._rng.bit_generator.state = state
+            return
         if len(state["envs"]) != self.num_envs:
             raise ValueError(f"saved random state has {len(state['envs'])} env streams, this env has {self.num_envs}")
         self._rng.bit_generator.state = state["main"]
