@@ -10,6 +10,8 @@
 #                   so that seeds of the blind stage share one ground-truth policy
 #   GT_SIMPLE_ITERS=n  (environment) iterations of the Simple-task ground-truth policy runs/gt_s0
 #                   (default 2500); trained first if its checkpoint is missing
+#   WARMUP=k        (environment) k perception warm-up rounds before PPO moves the policy (DAgger
+#                   for the perception, not in the paper; default 0); runs are tagged _wuK
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
 # 2. its rollouts as the perception dataset (50,000 frames, from the first step; recorded on the
@@ -28,7 +30,8 @@ MODEL=${1:?usage: experiments/table3.sh MODEL [SEED] [ITERATIONS] [PERCEPTION_SE
 SEED=${2:-0}
 ITERS=${3:-1200}
 PSET=${4:-}
-TAG=$MODEL$( [ -n "$PSET" ] && echo "_joints" || true )
+WARMUP=${WARMUP:-0}
+TAG=$MODEL$( [ -n "$PSET" ] && echo "_joints" || true )$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
@@ -47,7 +50,7 @@ if [ ! -f "$(last $GT 2000)" ]; then
 fi
 DATA=data/baoding_gthard_s$GT_SEED
 $T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED
-PERC=runs/perc/gthard_s${SEED}_${TAG}_pi
+PERC=runs/perc/gthard_s${SEED}_${MODEL}$( [ -n "$PSET" ] && echo "_joints" || true )_pi  # warm-up or not: same start
 if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
   $T train-perception --task baoding --model $MODEL --dataset $DATA --run $PERC --epochs 10 --seed $SEED \
     $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) $( [ -n "$PSET" ] && echo --set $PSET || true )
@@ -58,7 +61,7 @@ if [ ! -f "$(last $RUN $ITERS)" ]; then
     save_interval=100 init_from="$(last $GT 2000)" init_noise_std=0.2 learning_rate=0.0003 schedule=fixed \
     privileged_critic=true \
     seed=$SEED --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt epochs=2 \
-    update_every_steps=400
+    update_every_steps=400 warmup_rounds=$WARMUP
 fi
 for ckpt in "$(last $GT 2000)" "$(last $RUN $ITERS)"; do
   out=results/$(basename $(dirname $ckpt))_$(basename $ckpt .pt).json

@@ -105,3 +105,26 @@ def test_pretrained_perception_brings_its_architecture(tmp_path):
     with pytest.raises(ValueError, match="mlp"):
         OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"),
                                                 pretrained=str(tmp_path / "perc" / "checkpoint.pt")), skin)
+
+
+def test_warm_up_trains_the_perception_before_ppo_moves_the_policy(tmp_path, capsys):
+    """warmup_rounds: the starting policy acts and the perception learns from it first; the
+    policy's observation normaliser sees none of those steps, and a resumed run does not
+    warm up again."""
+    env = BaodingConfig(obs_mode="perceived")
+    ppo = PPOConfig(num_envs=8, max_iterations=2, save_interval=2)
+
+    def loop(rounds):
+        return OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), update_every_steps=16, epochs=2,
+                                      buffer_size=256, warmup_rounds=rounds)
+
+    train(env, ppo, tmp_path / "plain", perception_cfg=loop(0))
+    train(env, ppo, tmp_path / "warm", perception_cfg=loop(2))
+    assert capsys.readouterr().out.count("[perception warm-up] round") == 2
+    plain, warm = (load_checkpoint(tmp_path / r / "model_000002.pt") for r in ("plain", "warm"))
+    assert warm["perception"]["updates"] == plain["perception"]["updates"] + 2
+    counts = [{k: v for k, v in c["actor_state_dict"].items() if k.endswith("count")} for c in (plain, warm)]
+    assert counts[0] and counts[0] == counts[1]  # normaliser statistics over the PPO steps only
+    train(env, PPOConfig(num_envs=8, max_iterations=4, save_interval=2), tmp_path / "warm", resume=True,
+          perception_cfg=loop(2))
+    assert "warm-up" not in capsys.readouterr().out

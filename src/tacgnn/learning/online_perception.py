@@ -47,6 +47,10 @@ class OnlinePerceptionConfig:
     threads: int = 1
     match_balls: bool = True
     """Permutation-invariant loss over the two balls (True) or balls by identity (False)."""
+    warmup_rounds: int = 0
+    """Before PPO first updates the policy: rounds of (the starting policy acts on the perceived
+    balls for `update_every_steps` env steps, then one perception update). Not in the paper;
+    see `tacgnn.learning.ppo._warm_up_perception`."""
 
     def __post_init__(self) -> None:
         check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
@@ -54,6 +58,7 @@ class OnlinePerceptionConfig:
         check(self.epochs >= 0, "perception.epochs", "must be >= 0")
         check(self.buffer_size >= self.batch_size >= 1, "perception.buffer_size", "must be >= batch_size >= 1")
         check(self.record_every >= 1, "perception.record_every", "must be >= 1")
+        check(self.warmup_rounds >= 0, "perception.warmup_rounds", "must be >= 0")
 
 
 class OnlinePerception:
