@@ -25,8 +25,12 @@ PAPER = {  # success %, mean steps to finish; Simple / Middle / Hard
     "gcn": ((70.62, 64.51, 55.11), (100, 87, 103)),
     "tacgnn": ((94.71, 88.57, 79.78), (82, 86, 94)),
 }
-ROWS = [("mlp", "MLP"), ("cnn", "CNN"), ("gcn", "GCN"), ("tacgnn", "TacGNN-32"),
-        ("tacgnn_joints", "TacGNN-32 + joint angles (beyond the paper)")]
+# (run tag of experiments/table3.sh, label, the paper's row to show beside it)
+ROWS = [("mlp", "MLP", "mlp"), ("cnn", "CNN", "cnn"), ("gcn", "GCN", "gcn"), ("tacgnn", "TacGNN-32", "tacgnn"),
+        ("mlp_wu4", "MLP, 4 perception warm-up rounds (beyond the paper)", "mlp"),
+        ("cnn_wu4", "CNN, 4 perception warm-up rounds (beyond the paper)", "cnn"),
+        ("tacgnn_wu4", "TacGNN-32, 4 perception warm-up rounds (beyond the paper)", "tacgnn"),
+        ("tacgnn_joints", "TacGNN-32 + joint angles (beyond the paper)", None)]
 
 
 def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[dict]]:
@@ -72,9 +76,9 @@ def main() -> None:
              "|---|---|---|---|---|---|"]
     teacher = collect(results, "gt_hard", 2000)
     lines.append("| ground truth (teacher, Hard fine-tune) | " + " | ".join(pooled_cells(teacher)) + " | - | - |")
-    for key, label in ROWS:
+    for key, label, paper_key in ROWS:
         per_seed = collect(results, f"blind_{key}_hard", args.iterations)
-        paper = PAPER.get(key)
+        paper = PAPER.get(paper_key)
         paper_cells = (" / ".join(map(str, paper[0])), " / ".join(map(str, paper[1]))) if paper else ("-", "-")
         lines.append(f"| {label} | " + " | ".join(pooled_cells(per_seed)) + f" | {paper_cells[0]} | {paper_cells[1]} |")
     text = "\n".join(lines) + "\n"
