@@ -31,7 +31,8 @@ SEED=${2:-0}
 ITERS=${3:-1200}
 PSET=${4:-}
 WARMUP=${WARMUP:-0}
-TAG=$MODEL$( [ -n "$PSET" ] && echo "_joints" || true )$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )
+JOINTS=$( [ -n "$PSET" ] && echo "_joints" || true )
+TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
@@ -50,7 +51,7 @@ if [ ! -f "$(last $GT 2000)" ]; then
 fi
 DATA=data/baoding_gthard_s$GT_SEED
 $T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED
-PERC=runs/perc/gthard_s${SEED}_${MODEL}$( [ -n "$PSET" ] && echo "_joints" || true )_pi  # warm-up or not: same start
+PERC=runs/perc/gthard_s${SEED}_${MODEL}${JOINTS}_pi  # warm-up or not: same start
 if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
   $T train-perception --task baoding --model $MODEL --dataset $DATA --run $PERC --epochs 10 --seed $SEED \
     $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) $( [ -n "$PSET" ] && echo --set $PSET || true )

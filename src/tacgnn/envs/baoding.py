@@ -170,7 +170,6 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.ball_dof_adr = np.array([m.joint(f"{b}_free").dofadr[0] for b in BALLS])
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
-        self._joint_span = self.joint_high - self.joint_low
         self._spawn = np.array(cfg.spawn_offsets, dtype=np.float64)  # (2, 3) ball centres at reset
         self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
 
@@ -261,7 +260,6 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             return readings, None
         return readings, self.tactile.positions(sim.xpos[ids], sim.xmat[ids])
 
-    # --- reset -------------------------------------------------------------------------
     # --- random streams ----------------------------------------------------------------
     def _seed(self, seed: int | None) -> None:
         """One stream for the whole batch (skin noise seeds, observation noise: a fixed
@@ -340,7 +338,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if not np.isfinite(actions).all():
             raise ValueError(f"non-finite actions in envs {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
         actions = np.clip(actions, -1.0, 1.0)
-        sim.ctrl[:] = self.joint_low + 0.5 * (actions + 1.0) * self._joint_span  # action_to_ctrl, clipped above
+        sim.ctrl[:] = self.action_to_ctrl(actions)
         self._apply_disturbances()
         diverged = sim.step(self.substeps)
         self.episode_steps += 1

@@ -342,6 +342,11 @@ def _set_action_std(runner: _Runner, std: float) -> None:
                 param.fill_(math.log(std))
 
 
+def _metrics_line(metrics: dict[str, float]) -> str:
+    """'rmse_cm_before 0.8, rmse_cm_after 0.7, ...' from {'perception/rmse_cm_before': 0.8, ...}."""
+    return ", ".join(f"{k.split('/')[1]} {v:.4g}" for k, v in metrics.items())
+
+
 def _warm_up_perception(runner: _Runner, perception: OnlinePerception) -> None:
     """Train the perception on the starting policy's own states before PPO moves the policy.
 
@@ -361,8 +366,7 @@ def _warm_up_perception(runner: _Runner, perception: OnlinePerception) -> None:
             for _ in range(cfg.update_every_steps):
                 obs, *_ = runner.env.step(actor(obs, stochastic_output=True))
         metrics = perception.update()
-        print(f"[perception warm-up] round {round_}/{cfg.warmup_rounds}: "
-              + ", ".join(f"{k.split('/')[1]} {v:.4g}" for k, v in metrics.items()), flush=True)
+        print(f"[perception warm-up] round {round_}/{cfg.warmup_rounds}: {_metrics_line(metrics)}", flush=True)
     runner.alg.train_mode()
 
 
@@ -385,8 +389,7 @@ def _learn_with_perception(runner: _Runner, perception: OnlinePerception, ppo_cf
                 runner.logger.writer.add_scalar(key, value, it)
         if runner._saved_iteration == it and runner.last_checkpoint is not None:
             runner.write_checkpoint(runner.last_checkpoint.parent, it)  # now with the updated perception
-        print(f"[perception] iteration {it}: " + ", ".join(f"{k.split('/')[1]} {v:.4g}" for k, v in metrics.items()),
-              flush=True)
+        print(f"[perception] iteration {it}: {_metrics_line(metrics)}", flush=True)
 
 
 # --- checkpoints -----------------------------------------------------------------------

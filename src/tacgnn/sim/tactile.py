@@ -47,6 +47,7 @@ _NORMAL_BITS = 16
 _normal_table: np.ndarray | None = None
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1, _MIX2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+_TABLE_SHIFT = np.uint64(64 - _NORMAL_BITS)  # the hash's top bits index the table
 
 
 def normal_table() -> np.ndarray:
@@ -71,7 +72,7 @@ def counter_normal(seed: np.uint64, index: np.ndarray) -> np.ndarray:
         z = (z ^ (z >> np.uint64(30))) * _MIX1
         z = (z ^ (z >> np.uint64(27))) * _MIX2
         z ^= z >> np.uint64(31)
-    return normal_table()[(z >> np.uint64(64 - _NORMAL_BITS)).astype(np.intp)]
+    return normal_table()[(z >> _TABLE_SHIFT).astype(np.intp)]
 
 
 def sensor_name(patch_name: str) -> str:
@@ -239,11 +240,11 @@ def _press_kernel(out, sensordata, xpos, xmat, force_idx, patch_of_slot, body_id
             if v < threshold:
                 v = np.float32(0.0)
             elif noise32 > 0:
-                z = np.uint64(i) * np.uint64(0x9E3779B97F4A7C15) + seed
-                z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-                z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+                z = np.uint64(i) * _GOLDEN + seed  # counter_normal's hash
+                z = (z ^ (z >> np.uint64(30))) * _MIX1
+                z = (z ^ (z >> np.uint64(27))) * _MIX2
                 z = z ^ (z >> np.uint64(31))
-                v = v * (np.float32(1.0) + noise32 * table[z >> np.uint64(64 - 16)])
+                v = v * (np.float32(1.0) + noise32 * table[z >> _TABLE_SHIFT])
                 v = max(v, np.float32(0.0))
             out[i] = v
 
