@@ -36,6 +36,9 @@ PAPER_TABLE2 = {  # model: (train cm, test cm)
     "mlp": (0.230, 0.250), "cnn": (0.114, 27.76), "gcn": (0.130, 0.152), "tacgnn-32": (0.077, 0.096),
     "tacgnn-16": (0.340, 0.251), "tacgnn-64": (0.098, 0.085), "tacgnn-128": (0.069, 0.077),
 }
+# Table I's columns: the paper's four models; TacGNN at 32 channels (Table II's reference width)
+# and at 64 (session 4: 32 channels underfit the grasps, train error = test error)
+TABLE1_MODELS = (("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 64))
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -135,6 +138,8 @@ def main() -> None:
     parser.add_argument("--only-table1", action="store_true",
                         help="train Table I's runs and stop (to run beside a full invocation on another core; "
                              "a full run afterwards reuses them and writes the page)")
+    parser.add_argument("--models", nargs="+", default=None, metavar="NAME",
+                        help="with --only-table1: train only these columns (mlp cnn gcn tacgnn-32 tacgnn-64)")
     parser.add_argument("--report", action="store_true",
                         help="train nothing: write the page from the runs that are complete ('not run' for others)")
     parser.add_argument("--paper-setup", action="store_true",
@@ -145,6 +150,11 @@ def main() -> None:
     parser.add_argument("--baoding-samples", type=int, default=25_000,
                         help="frames used for Table II (the first ones of the dataset)")
     args = parser.parse_args()
+    known = [row_label(m, ch) for m, ch in TABLE1_MODELS]
+    if args.models and not args.only_table1:
+        parser.error("--models goes with --only-table1")
+    if args.models and (unknown := set(args.models) - set(known)):
+        parser.error(f"--models: unknown {sorted(unknown)}; choose from {known}")
     args.grasp_samples, args.test_samples, args.shard = 20_000, 5_000, 5_000
     args.model_kw = {"use_force": False, "force_feature": "raw", "pool": "last"} if args.paper_setup else {}
     args.other_pitch = 1.25
@@ -167,10 +177,13 @@ def main() -> None:
              "(the paper: 1,000,000 steps and 200,000 grasps). Ours: mean ± std over seeds.", ""]
 
     if args.only_table1:
-        for obj in ("cube", "cylinder", "meat_can"):
-            for m in ("tacgnn", "mlp", "cnn", "gcn"):
-                for s in seeds:
-                    run(obj, m, 32, s, data[obj], args)
+        for s in seeds:  # seed-major: an interrupted invocation leaves whole seeds behind
+            for m, ch in TABLE1_MODELS:
+                if args.models and row_label(m, ch) not in args.models:
+                    continue
+                for obj in ("cube", "cylinder", "meat_can"):
+                    run(obj, m, ch, s, data[obj], args)
+        args.report = True  # the page shows the complete runs; columns left out by --models stay "not run"
         stem = "perception_table1" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
         (ROOT / "docs" / f"{stem}.md").write_text(text)
@@ -248,14 +261,15 @@ def main() -> None:
 
 def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:
     """Table I (object pose after a power grasp), ours beside the paper's, as markdown lines."""
+    ours_head = " | ".join(m.upper() if m != "tacgnn" else f"TacGNN-{ch}" for m, ch in TABLE1_MODELS)
     lines = ["", "## Table I: object pose after a power grasp (test RMSE: position cm / orientation deg)", "",
-             "| object | metric | MLP | CNN | GCN | TacGNN | paper MLP | paper CNN | paper GCN | paper TacGNN |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             f"| object | metric | {ours_head} | paper MLP | paper CNN | paper GCN | paper TacGNN |",
+             "|---|---|" + "---|" * (len(TABLE1_MODELS) + 4)]
     for obj in ("cube", "cylinder", "meat_can"):
-        res = {m: [r for s in seeds if (r := run(obj, m, 32, s, data[obj], args))] for m in ("mlp", "cnn", "gcn", "tacgnn")}
+        res = {(m, ch): [r for s in seeds if (r := run(obj, m, ch, s, data[obj], args))] for m, ch in TABLE1_MODELS}
         for metric, idx, label in (("test/position_rmse_cm", 0, "position (cm)"),
                                    ("test/orientation_rmse_deg", 1, "orientation (deg)")):
-            ours = [mean_std([r["final"][metric] for r in res[m]]) for m in ("mlp", "cnn", "gcn", "tacgnn")]
+            ours = [mean_std([r["final"][metric] for r in res[key]]) for key in TABLE1_MODELS]
             paper = [str(PAPER_TABLE1[obj][m][idx]) for m in ("mlp", "cnn", "gcn", "tacgnn")]
             lines.append(f"| {obj} | {label} | " + " | ".join(ours + paper) + " |")
     return lines

@@ -29,6 +29,7 @@ PAPER = {  # success %, mean steps to finish; Simple / Middle / Hard
 ROWS = [("mlp", "MLP", "mlp"), ("cnn", "CNN", "cnn"), ("gcn", "GCN", "gcn"), ("tacgnn", "TacGNN-32", "tacgnn"),
         ("mlp_wu4", "MLP, 4 perception warm-up rounds (beyond the paper)", "mlp"),
         ("cnn_wu4", "CNN, 4 perception warm-up rounds (beyond the paper)", "cnn"),
+        ("gcn_wu4", "GCN, 4 perception warm-up rounds (beyond the paper)", "gcn"),
         ("tacgnn_wu4", "TacGNN-32, 4 perception warm-up rounds (beyond the paper)", "tacgnn"),
         ("tacgnn_joints", "TacGNN-32 + joint angles (beyond the paper)", None)]
 

@@ -213,6 +213,51 @@ def test_truncated_checkpoint_is_named(run2, tmp_path):
         load_checkpoint(tmp_path / "junk.pt")
 
 
+def _assert_same(a, b, where="checkpoint"):
+    """Deep equality, key order and tensor dtypes included."""
+    assert type(a) is type(b), where
+    if isinstance(a, dict):
+        assert list(a) == list(b), where
+        for key in a:
+            _assert_same(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, torch.Tensor):
+        assert a.dtype == b.dtype and torch.equal(a, b), where
+    else:
+        assert a == b, where
+
+
+def test_save_load_save_gives_identical_bytes(run2, tmp_path):
+    """Reliability test 6: a checkpoint restored into a fresh runner and written again holds the
+    same tensor bytes and the same structure: the round trip loses or alters nothing.
+
+    Only two archive members may differ: torch writes a random `serialization_id` per save, and
+    the pickle memoises equal strings by object identity, which a load does not keep."""
+    import zipfile
+
+    from tacgnn.learning.ppo import _Runner
+
+    path = run2 / "model_000002.pt"
+    cfg, p = replace(ENV, num_envs=8), ppo(2)
+    runner = _Runner(RslBaodingEnv(cfg, p.reward_scale, p.bootstrap_time_outs), cfg, p, None)
+    runner.restore(load_checkpoint(path))
+    runner.write_checkpoint(tmp_path, 2)
+    again = tmp_path / "model_000002.pt"
+
+    def members(file):
+        with zipfile.ZipFile(file) as z:
+            return {i.filename.split("/", 1)[1]: z.read(i) for i in z.infolist()}
+
+    first, second = members(path), members(again)
+    assert first.keys() == second.keys()
+    differing = {name for name in first if first[name] != second[name]}
+    assert differing <= {"data.pkl", ".data/serialization_id"}, differing
+    _assert_same(torch.load(path, weights_only=True), torch.load(again, weights_only=True))
+
+
 def test_failed_save_leaves_no_partial_file(run2, tmp_path, monkeypatch):
     shutil.copytree(run2, tmp_path / "run")
 
