@@ -39,6 +39,7 @@ PAPER_TABLE2 = {  # model: (train cm, test cm)
 # Table I's columns: the paper's four models; TacGNN at 32 channels (Table II's reference width)
 # and at 64 (session 4: 32 channels underfit the grasps, train error = test error)
 TABLE1_MODELS = (("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 64))
+CURVE_MODELS = (("mlp", 32), ("gcn", 32), ("tacgnn", 32))  # the dataset-size curve's models
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -84,7 +85,9 @@ def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, ma
     name = (f"{model}-{channels}" if model == "tacgnn" else model) + ("-joints" if joints else "")
     setup = "paper" if args.paper_setup else "ours"
     root = ROOT / "runs" / ("perception_quick" if args.quick else "perception")  # quick runs never mix in
-    run_dir = root / setup / task / (f"n{max_samples}" if max_samples else "all") / name / f"seed{seed}"
+    # Baoding runs are kept per dataset (--baoding-data may name any); each grasp task has one dataset
+    data_dir = f"{task}/{dataset.name}" if task == "baoding" else task
+    run_dir = root / setup / data_dir / (f"n{max_samples}" if max_samples else "all") / name / f"seed{seed}"
     cfg = run_config(task, model, channels, seed, args, max_samples, joints)
     ckpt = run_dir / "checkpoint.pt"
     complete = ckpt.exists() and load_checkpoint(ckpt)["epoch"] == args.epochs - 1
@@ -138,8 +141,12 @@ def main() -> None:
     parser.add_argument("--only-table1", action="store_true",
                         help="train Table I's runs and stop (to run beside a full invocation on another core; "
                              "a full run afterwards reuses them and writes the page)")
+    parser.add_argument("--only-curve", action="store_true",
+                        help="train the dataset-size curve's runs (ball positions, seed 0), write "
+                             "docs/perception_data_curve.md and stop")
     parser.add_argument("--models", nargs="+", default=None, metavar="NAME",
-                        help="with --only-table1: train only these columns (mlp cnn gcn tacgnn-32 tacgnn-64)")
+                        help="with --only-table1 or --only-curve: train only these models "
+                             "(mlp cnn gcn tacgnn-32 tacgnn-64)")
     parser.add_argument("--report", action="store_true",
                         help="train nothing: write the page from the runs that are complete ('not run' for others)")
     parser.add_argument("--paper-setup", action="store_true",
@@ -151,8 +158,8 @@ def main() -> None:
                         help="frames used for Table II (the first ones of the dataset)")
     args = parser.parse_args()
     known = [row_label(m, ch) for m, ch in TABLE1_MODELS]
-    if args.models and not args.only_table1:
-        parser.error("--models goes with --only-table1")
+    if args.models and not (args.only_table1 or args.only_curve):
+        parser.error("--models goes with --only-table1 or --only-curve")
     if args.models and (unknown := set(args.models) - set(known)):
         parser.error(f"--models: unknown {sorted(unknown)}; choose from {known}")
     args.grasp_samples, args.test_samples, args.shard = 20_000, 5_000, 5_000
@@ -187,6 +194,14 @@ def main() -> None:
         stem = "perception_table1" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
         (ROOT / "docs" / f"{stem}.md").write_text(text)
+        print(text)
+        return
+
+    if args.only_curve:
+        models = [(m, ch) for m, ch in (*CURVE_MODELS, ("tacgnn", 64))
+                  if not args.models or row_label(m, ch) in args.models]
+        text = "\n".join(lines[:4] + data_curve_lines(data, args, models)) + "\n"
+        (ROOT / "docs" / ("perception_data_curve" + ("_quick" if args.quick else "") + ".md")).write_text(text)
         print(text)
         return
 
@@ -234,18 +249,7 @@ def main() -> None:
                               for r in runs]))
         lines.append(f"| {key} | " + " | ".join(cols) + " |")
 
-    # Learning curve over dataset size (seed 0)
-    total = sum(s["samples"] for s in read_manifest(data["baoding"])["shards"].values())
-    sizes = sorted({n for n in (2_500, 5_000, 10_000, args.baoding_samples) if n < total} | {total})
-    curve = {}
-    for model, ch in (("mlp", 32), ("gcn", 32), ("tacgnn", 32)):
-        curve[model] = [run("baoding", model, ch, 0, data["baoding"], args, max_samples=0 if n == total else n)
-                        for n in sizes]
-    lines += ["", "## Does more data change the ranking? (ball positions, seed 0, test RMSE cm)", "",
-              "| frames | " + " | ".join(curve) + " |", "|---|" + "---|" * len(curve)]
-    for i, n in enumerate(sizes):
-        lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]['final']['test/position_rmse_cm']:.3f}"
-                                              if curve[m][i] else "not run" for m in curve) + " |")
+    lines += data_curve_lines(data, args, CURVE_MODELS)
 
     stem = "perception_results" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
     plot_curves(table2, ROOT / "docs" / f"{stem}.png")
@@ -257,6 +261,23 @@ def main() -> None:
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "
           f"{[read_manifest(p)['metadata']['seed'] for p in data.values()]}")
+
+
+def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
+    """Ball-position test RMSE against the number of Baoding frames (seed 0): does more data
+    change the ranking? Sizes 2,500, 5,000, 10,000, --baoding-samples and the whole dataset."""
+    total = sum(s["samples"] for s in read_manifest(data["baoding"])["shards"].values())
+    sizes = sorted({n for n in (2_500, 5_000, 10_000, args.baoding_samples) if n < total} | {total})
+    curve = {}
+    for model, ch in models:
+        curve[row_label(model, ch)] = [run("baoding", model, ch, 0, data["baoding"], args,
+                                           max_samples=0 if n == total else n) for n in sizes]
+    lines = ["", "## Does more data change the ranking? (ball positions, seed 0, test RMSE cm)", "",
+             "| frames | " + " | ".join(curve) + " |", "|---|" + "---|" * len(curve)]
+    for i, n in enumerate(sizes):
+        lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]['final']['test/position_rmse_cm']:.3f}"
+                                              if curve[m][i] else "not run" for m in curve) + " |")
+    return lines
 
 
 def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:

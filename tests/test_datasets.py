@@ -115,3 +115,23 @@ def test_grasp_datasets_hold_real_grasps(tmp_path, obj):
     rot = data["object_rot"]
     assert np.allclose(rot @ rot.transpose(0, 2, 1), np.eye(3), atol=1e-6)
     assert np.abs(data["object_pos"]).max() < 0.15
+
+
+def test_meat_can_face_sets_the_side_it_rests_on(tmp_path):
+    """`can_face` reaches the grasp through the CLI's --set, and decides which axis of the can
+    ends along the palm normal: the 50 mm one (broad face down) or the 82 mm one (narrow)."""
+    from tacgnn.cli import main
+    from tacgnn.envs.grasp import GraspConfig, PowerGrasp
+
+    normal = PowerGrasp(GraspConfig(object="meat_can", num_envs=1)).palm_axes[:, 0]
+    up_axis = {}
+    for face in ("broad", "narrow"):
+        out = tmp_path / face
+        assert main(["make-dataset", "grasp", "--object", "meat_can", "--out", str(out), "--samples", "48",
+                     "--shard-size", "48", "--set", f"can_face={face}"]) == 0
+        data = load(out, expect={"object": "meat_can"})
+        up = np.abs(np.einsum("nij,i->nj", data["object_rot"], normal)).argmax(1)
+        up_axis[face] = np.bincount(up, minlength=3) / len(up)
+    assert up_axis["broad"][0] > 0.8 and up_axis["narrow"][2] > 0.8, up_axis
+    with pytest.raises(ValueError, match="can_face"):
+        GraspConfig(object="meat_can", can_face="upside")

@@ -175,8 +175,10 @@ def cmd_make_dataset(args) -> int:
                                              settle_steps=args.settle_steps)
         baoding_data.generate(cfg, args.out, progress=progress)
     else:
+        grasp = load_yaml(GraspConfig, args.config) if args.config else GraspConfig()
+        updates = {**({"object": args.object} if args.object else {}), **parse_overrides(args.set or [])}
         cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
-                                         grasp=GraspConfig(object=args.object))
+                                         grasp=override(grasp, updates) if updates else grasp)
         grasp_data.generate(cfg, args.out, progress=progress)
     print(f"dataset complete: {args.out} ({args.samples} samples)")
     return 0
@@ -375,7 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True)
     p.add_argument("--samples", type=int, default=25_000)
     p.add_argument("--shard-size", type=int, default=5_000)
-    p.add_argument("--object", choices=["cube", "cylinder", "meat_can"], default="cube")
+    p.add_argument("--object", choices=["cube", "cylinder", "meat_can"],
+                   help="grasp: the object (default cube); --config/--set take GraspConfig keys for grasps, "
+                        "e.g. --set can_face=narrow")
     p.add_argument("--policy", help="baoding: a ground-truth PPO checkpoint drives the balls")
     p.add_argument("--settle-steps", type=int, default=5,
                    help="baoding: skip this many first steps of each episode (0 keeps the dropping balls)")

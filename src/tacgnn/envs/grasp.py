@@ -12,6 +12,8 @@ Objects (config `object`):
   own axis is ignored (the label is the axis direction).
 * meat_can: the YCB 010 potted meat can as a box of 50 x 97 x 82 mm and 0.37 kg (the
   YCB paper's table; the real can's rounded edges are left out), yaw in [0, 180) deg.
+  It is dropped on its broad 97 x 82 face (`can_face="broad"`, the default) or stood on
+  its narrow 50 x 97 face (`"narrow"`), where the fingers wrap its 82 mm sides.
 """
 
 from __future__ import annotations
@@ -47,11 +49,15 @@ class GraspConfig:
     """Uniform +- noise (m) of the drop point along the palm."""
     closure: tuple[float, float] = (0.5, 1.0)
     """Range of the random closure, as a fraction of each flexion joint's range."""
+    can_face: Literal["broad", "narrow"] = "broad"
+    """meat_can: the face it is dropped on. On the broad face it covers most of the palm and
+    its yaw barely shows in the skin (experiments/perception_accuracy/NOTES.md)."""
 
     def __post_init__(self) -> None:
         check(self.num_envs >= 1, "num_envs", "must be >= 1")
         check(min(self.settle_steps, self.close_steps, self.hold_steps) >= 1, "close_steps", "phases need >= 1 step")
         check(0 <= self.closure[0] <= self.closure[1] <= 1, "closure", "needs 0 <= low <= high <= 1")
+        check(self.can_face in ("broad", "narrow"), "can_face", f"must be 'broad' or 'narrow', got {self.can_face!r}")
 
 
 def _add_object(spec: mujoco.MjSpec, name: ObjectName) -> None:
@@ -79,7 +85,8 @@ class PowerGrasp(HandEnvBase):
         self.object_qpos_adr = self.model.joint("object_free").qposadr[0]
         self.palm_axes = palm_frame(cfg.hand)
         # half extent along the palm normal in the spawn pose
-        self.rest_height = {"cube": 0.015, "cylinder": 0.02, "meat_can": 0.025}[cfg.object]
+        self.rest_height = {"cube": 0.015, "cylinder": 0.02,
+                            "meat_can": 0.025 if cfg.can_face == "broad" else 0.041}[cfg.object]
 
     def _spawn(self, rng: np.random.Generator) -> None:
         """Object above the palm centre in a random pose, fingers open."""
@@ -99,9 +106,12 @@ class PowerGrasp(HandEnvBase):
         elif cfg.object == "cylinder":  # lying: its axis (z) along heading, x up
             x, z = up, heading
             y = np.cross(z, x)
-        else:  # meat can lying on its broad face: x (50 mm) up, y (97 mm) along heading
+        elif cfg.can_face == "broad":  # meat can lying on its broad face: x (50 mm) up, y (97 mm) along heading
             x, y = up, heading
             z = np.cross(x, y)
+        else:  # meat can standing on its narrow face: z (82 mm) up, y (97 mm) along heading
+            y, z = heading, up
+            x = np.cross(y, z)
         rot = np.stack([x, y, z], axis=2)  # (n, 3, 3)
         quat = np.zeros((n, 4))
         for i in range(n):
