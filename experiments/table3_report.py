@@ -55,9 +55,11 @@ def pooled_cells(per_seed: dict[int, list[dict]]) -> list[str]:
         n = sum(r["episodes"] for r in records)
         wins = sum(round(r["success_rate"] * r["episodes"]) for r in records)
         lo, hi = wilson_interval(wins, n)
-        steps = sum(r["mean_steps_to_success"] * round(r["success_rate"] * r["episodes"]) for r in records) / max(wins, 1)
+        steps = sum(r["mean_steps_to_success"] * round(r["success_rate"] * r["episodes"])
+                    for r in records if r["success_rate"] > 0) / max(wins, 1)
         seeds = " / ".join(f"{100 * r['success_rate']:.1f}" for r in records)
-        cells.append(f"**{100 * wins / n:.1f}** [{100 * lo:.1f}-{100 * hi:.1f}] ({seeds}); {steps:.0f} steps")
+        steps_text = f"{steps:.0f} steps" if wins else "no success"
+        cells.append(f"**{100 * wins / n:.1f}** [{100 * lo:.1f}-{100 * hi:.1f}] ({seeds}); {steps_text}")
     return cells
 
 
@@ -69,7 +71,9 @@ def main() -> None:
     args = ap.parse_args()
     results = Path(args.results)
     lines = ["# Table III: blind Baoding, success rate by perception model", "",
-             f"Made by `experiments/table3.sh MODEL SEED {args.iterations}` per row and seed, then "
+             f"Made by `experiments/table3.sh MODEL SEED {args.iterations}` per row and seed (for a "
+             f"checkpoint inside a longer run: `tacgnn evaluate RUN/model_{args.iterations:06d}.pt --task all "
+             "--episodes 512 --envs 128 --out results/RUN_model_NNNNNN.json`), then "
              f"`.venv/bin/python experiments/table3_report.py --iterations {args.iterations}`. "
              "Each cell: success % pooled over all episodes of all seeds, [Wilson 95 % interval], "
              "(each seed's rate), mean steps to success. The paper's figures follow in the same row.", "",

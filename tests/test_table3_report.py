@@ -48,3 +48,12 @@ def test_missing_rows_read_not_run(report, tmp_path):
     rows = {line.split(" | ")[0]: line for line in out.read_text().splitlines() if line.startswith("| ")}
     assert "**95.0**" in rows["| TacGNN-32"] and "94.71 / 88.57 / 79.78" in rows["| TacGNN-32"]
     assert rows["| MLP"].count("not run") == 3
+
+
+def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
+    """A run that never succeeds has NaN mean steps: it must not turn the pooled steps into NaN."""
+    _write(tmp_path / "blind_mlp_hard_s0_model_000800.json", (0.0, 0.0, 0.0), steps=float("nan"))
+    assert report.pooled_cells(report.collect(tmp_path, "blind_mlp_hard", 800))[0] == \
+        f"**0.0** [0.0-{100 * wilson_interval(0, 100)[1]:.1f}] (0.0); no success"
+    _write(tmp_path / "blind_mlp_hard_s1_model_000800.json", (0.5, 0.5, 0.5), steps=30.0)
+    assert report.pooled_cells(report.collect(tmp_path, "blind_mlp_hard", 800))[0].endswith("(0.0 / 50.0); 30 steps")
