@@ -185,23 +185,19 @@ def main() -> None:
 
     if args.only_table1:
         for s in seeds:  # seed-major: an interrupted invocation leaves whole seeds behind
-            for m, ch in TABLE1_MODELS:
-                if args.models and row_label(m, ch) not in args.models:
-                    continue
+            for m, ch in chosen(TABLE1_MODELS, args):
                 for obj in ("cube", "cylinder", "meat_can"):
                     run(obj, m, ch, s, data[obj], args)
         args.report = True  # the page shows the complete runs; columns left out by --models stay "not run"
-        stem = "perception_table1" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
-        (ROOT / "docs" / f"{stem}.md").write_text(text)
+        (ROOT / "docs" / f"{page_stem('perception_table1', args)}.md").write_text(text)
         print(text)
         return
 
     if args.only_curve:
-        models = [(m, ch) for m, ch in (*CURVE_MODELS, ("tacgnn", 64))
-                  if not args.models or row_label(m, ch) in args.models]
+        models = chosen(TABLE1_MODELS, args) if args.models else CURVE_MODELS
         text = "\n".join(lines[:4] + data_curve_lines(data, args, models)) + "\n"
-        (ROOT / "docs" / ("perception_data_curve" + ("_quick" if args.quick else "") + ".md")).write_text(text)
+        (ROOT / "docs" / f"{page_stem('perception_data_curve', args)}.md").write_text(text)
         print(text)
         return
 
@@ -251,7 +247,7 @@ def main() -> None:
 
     lines += data_curve_lines(data, args, CURVE_MODELS)
 
-    stem = "perception_results" + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
+    stem = page_stem("perception_results", args)
     plot_curves(table2, ROOT / "docs" / f"{stem}.png")
     lines += ["", f"Learning curves (test RMSE per epoch, seed 0): `docs/{stem}.png`.", ""]
     out = ROOT / "docs" / f"{stem}.md"
@@ -261,6 +257,16 @@ def main() -> None:
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "
           f"{[read_manifest(p)['metadata']['seed'] for p in data.values()]}")
+
+
+def page_stem(name: str, args) -> str:
+    """A page's file stem: --paper-setup and --quick runs write pages of their own."""
+    return name + ("_paper_setup" if args.paper_setup else "") + ("_quick" if args.quick else "")
+
+
+def chosen(models, args) -> list[tuple[str, int]]:
+    """The (model, channels) of `models` that --models names (all of them without --models)."""
+    return [(m, ch) for m, ch in models if not args.models or row_label(m, ch) in args.models]
 
 
 def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:

@@ -53,10 +53,11 @@ def pooled_cells(per_seed: dict[int, list[dict]]) -> list[str]:
             cells.append("not run")
             continue
         n = sum(r["episodes"] for r in records)
-        wins = sum(round(r["success_rate"] * r["episodes"]) for r in records)
+        won = [round(r["success_rate"] * r["episodes"]) for r in records]
+        wins = sum(won)
         lo, hi = wilson_interval(wins, n)
-        steps = sum(r["mean_steps_to_success"] * round(r["success_rate"] * r["episodes"])
-                    for r in records if r["success_rate"] > 0) / max(wins, 1)
+        # a run without a success has NaN mean steps: it adds nothing
+        steps = sum(r["mean_steps_to_success"] * k for r, k in zip(records, won) if k) / max(wins, 1)
         seeds = " / ".join(f"{100 * r['success_rate']:.1f}" for r in records)
         steps_text = f"{steps:.0f} steps" if wins else "no success"
         cells.append(f"**{100 * wins / n:.1f}** [{100 * lo:.1f}-{100 * hi:.1f}] ({seeds}); {steps_text}")

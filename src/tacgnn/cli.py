@@ -38,14 +38,18 @@ import yaml
 from tacgnn.config import ConfigError, load_yaml, override, parse_overrides, to_dict
 
 
+def _config(cls, args, **given):
+    """`cls` from --config (YAML) or its defaults, then --set, then the keys of the command's
+    own flags `given` (None = flag not given), which win."""
+    cfg = load_yaml(cls, args.config) if args.config else cls()
+    updates = {**parse_overrides(args.set or []), **{k: v for k, v in given.items() if v is not None}}
+    return override(cfg, updates) if updates else cfg
+
+
 def _baoding_config(args):
     from tacgnn.envs.baoding import BaodingConfig
 
-    cfg = load_yaml(BaodingConfig, args.config) if args.config else BaodingConfig()
-    updates = parse_overrides(args.set or [])
-    if getattr(args, "envs", None):
-        updates["num_envs"] = args.envs
-    return override(cfg, updates) if updates else cfg
+    return _config(BaodingConfig, args, num_envs=getattr(args, "envs", None) or None)
 
 
 def _make_env(args):
@@ -175,10 +179,8 @@ def cmd_make_dataset(args) -> int:
                                              settle_steps=args.settle_steps)
         baoding_data.generate(cfg, args.out, progress=progress)
     else:
-        grasp = load_yaml(GraspConfig, args.config) if args.config else GraspConfig()
-        updates = {**({"object": args.object} if args.object else {}), **parse_overrides(args.set or [])}
         cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
-                                         grasp=override(grasp, updates) if updates else grasp)
+                                         grasp=_config(GraspConfig, args, object=args.object))
         grasp_data.generate(cfg, args.out, progress=progress)
     print(f"dataset complete: {args.out} ({args.samples} samples)")
     return 0
