@@ -43,18 +43,24 @@ def schema(num_taxels: int) -> dict[str, Field]:
     }
 
 
+def held(sim: PowerGrasp, out: dict[str, np.ndarray], min_taxels: int) -> np.ndarray:
+    """Which grasps of `sim.run`'s output kept the object: above the palm, within 8 cm of its
+    centre, and pressing at least `min_taxels` taxels."""
+    centre = sim.palm_axes @ np.array([0.0111, 0.0, -0.045])
+    rel = (out["object_pos"] - centre) @ sim.palm_axes
+    ok = (rel[:, 0] > 0) & (rel[:, 0] < 0.08) & (np.linalg.norm(rel[:, 1:], axis=1) < 0.08)
+    return ok & ((out["tactile"] > 0).sum(1) >= min_taxels)
+
+
 def record_shard(cfg: GraspDataConfig, index: int) -> dict[str, np.ndarray]:
     """Grasp until a shard is full; deterministic in (seed, index)."""
     sim = PowerGrasp(replace(cfg.grasp, num_envs=cfg.num_envs))
     parts: dict[str, list] = {k: [] for k in schema(sim.tactile.num_taxels)}
     count, batch = 0, 0
-    centre = sim.palm_axes @ np.array([0.0111, 0.0, -0.045])
     while count < cfg.shard_size:
         out = sim.run(seed=(cfg.seed * 100_003 + index) * 1_000 + batch)
         batch += 1
-        rel = (out["object_pos"] - centre) @ sim.palm_axes
-        ok = (rel[:, 0] > 0) & (rel[:, 0] < 0.08) & (np.linalg.norm(rel[:, 1:], axis=1) < 0.08)
-        ok &= (out["tactile"] > 0).sum(1) >= cfg.min_taxels
+        ok = held(sim, out, cfg.min_taxels)
         for k in parts:
             parts[k].append(out[k][ok])
         count += int(ok.sum())
