@@ -2,3 +2,28 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the CLI: no spinning OpenMP workers (see tacgnn/cli.py)
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def poison_loss(monkeypatch):
+    """poison_loss(fault, at_call): the at_call-th perception loss becomes NaN ("loss"), or
+    stays finite with an infinite gradient behind it ("gradient")."""
+    from tacgnn.perception.objectives import Objective
+
+    def install(fault: str, at_call: int) -> None:
+        real, calls = Objective.loss, []
+
+        def poisoned(self, pred, target):
+            loss = real(self, pred, target)
+            calls.append(1)
+            if len(calls) == at_call:
+                if fault == "loss":
+                    return loss * float("nan")
+                loss.register_hook(lambda g: g * float("inf"))
+            return loss
+
+        monkeypatch.setattr(Objective, "loss", poisoned)
+
+    return install

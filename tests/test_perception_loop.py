@@ -128,3 +128,30 @@ def test_warm_up_trains_the_perception_before_ppo_moves_the_policy(tmp_path, cap
     train(env, PPOConfig(num_envs=8, max_iterations=4, save_interval=2), tmp_path / "warm", resume=True,
           perception_cfg=loop(2))
     assert "warm-up" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("fault", ["loss", "gradient"])
+def test_online_update_with_a_non_finite_loss_or_gradient_leaves_the_model_as_it_was(poison_loss, fault):
+    import torch
+
+    from tacgnn.config import to_dict
+    from tacgnn.envs.baoding import BaodingEnv
+    from tacgnn.learning.online_perception import OnlinePerception
+
+    env = BaodingEnv(BaodingConfig(num_envs=8, obs_mode="perceived"))
+    perception = OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), epochs=1,
+                                                         batch_size=16), to_dict(env.config.skin))
+    env.perception = perception
+    env.reset(seed=0)
+    for _ in range(8):
+        *_, info = env.step(env.last_action)
+        perception.record(info)
+    before = {k: v.clone() for k, v in perception.model.state_dict().items()}
+    poison_loss(fault, at_call=2)  # the second batch
+    with pytest.raises(FloatingPointError, match=f"non-finite {fault}.*perception update 1"):
+        perception.update()
+    after = perception.model.state_dict()
+    changed = [k for k in before if not torch.equal(before[k], after[k])]
+    assert changed  # the first batch stepped ...
+    assert all(torch.isfinite(after[k]).all() for k in after)  # ... the poisoned one did not
+    assert perception.updates == 0

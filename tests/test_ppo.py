@@ -1,5 +1,6 @@
 """PPO wiring: the rsl_rl adapter, training runs, checkpoints, exact resume, evaluation, learning."""
 
+import copy
 import shutil
 from dataclasses import replace
 
@@ -256,6 +257,40 @@ def test_save_load_save_gives_identical_bytes(run2, tmp_path):
     differing = {name for name in first if first[name] != second[name]}
     assert differing <= {"data.pkl", ".data/serialization_id"}, differing
     _assert_same(torch.load(path, weights_only=True), torch.load(again, weights_only=True))
+
+
+def test_non_finite_gradient_rolls_the_update_back_and_names_it(run2, tmp_path, monkeypatch):
+    """Reliability item 3: an infinite gradient must not reach the weights or a checkpoint."""
+    from rsl_rl.algorithms import PPO
+
+    resumed = tmp_path / "resumed"
+    shutil.copytree(run2, resumed)
+    seen = []  # (algorithm, its state just before the poisoned update)
+    real_update, real_clip = PPO.update, torch.nn.utils.clip_grad_norm_
+
+    def recording_update(self):
+        seen.append((self, copy.deepcopy(self.save())))
+        return real_update(self)
+
+    def poisoned_clip(params, *args, **kwargs):  # rsl_rl clips after backward, before the step
+        params = list(params)
+        if len(seen) == 2:  # the second update after resuming: the run's fourth
+            params[0].grad.view(-1)[0] = float("inf")
+        return real_clip(params, *args, **kwargs)
+
+    monkeypatch.setattr(PPO, "update", recording_update)
+    monkeypatch.setattr(torch.nn.utils, "clip_grad_norm_", poisoned_clip)
+    with pytest.raises(FloatingPointError, match=r"PPO update 4 gave non-finite values \(actor .*rolled back.*model_000002"):
+        train(ENV, ppo(4), resumed, resume=True)
+    alg, before = seen[-1]
+    after = alg.save()
+    for key in ("actor_state_dict", "critic_state_dict"):
+        for name, tensor in before[key].items():
+            assert torch.equal(tensor, after[key][name]), f"{key}.{name}"
+    for i, state in before["optimizer_state_dict"]["state"].items():
+        assert all(torch.equal(state[k], after["optimizer_state_dict"]["state"][i][k]) for k in state)
+    assert [p.name for p in list_checkpoints(resumed)] == ["model_000001.pt", "model_000002.pt"]
+    assert all(torch.isfinite(t).all() for t in load_checkpoint(resumed / "model_000002.pt")["actor_state_dict"].values())
 
 
 def test_failed_save_leaves_no_partial_file(run2, tmp_path, monkeypatch):

@@ -91,6 +91,22 @@ def test_bad_checkpoints_and_datasets_fail_loudly(dataset, tmp_path):
     assert "position_rmse_cm" in evaluate(tmp_path / "ok" / "checkpoint.pt", dataset, dead_fraction=0.1)
 
 
+@pytest.mark.parametrize("fault", ["loss", "gradient"])
+def test_non_finite_loss_or_gradient_stops_training_and_keeps_the_last_checkpoint(dataset, tmp_path,
+                                                                                  monkeypatch, poison_loss, fault):
+    """Reliability item 3: the run stops naming the batch; the checkpoint it leaves is the last good one."""
+    cfg = PerceptionTrainConfig.for_task("baoding", "mlp", epochs=2, threads=1)
+    batches_per_epoch = -(-640 // cfg.batch_size)  # 80 % of 800 frames
+    poison_loss(fault, at_call=batches_per_epoch + 3)
+    with pytest.raises(FloatingPointError, match=f"non-finite {fault}.* at epoch 1, batch 2 of .*run"):
+        train(cfg, dataset, tmp_path / "run", log=lambda *_: None)
+    payload = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
+    assert payload["epoch"] == 0 and all(torch.isfinite(t).all() for t in payload["model"].values())
+    monkeypatch.undo()
+    train(cfg, dataset, tmp_path / "run", resume=True, log=lambda *_: None)  # and the run goes on from it
+    assert load_checkpoint(tmp_path / "run" / "checkpoint.pt")["epoch"] == 1
+
+
 def test_lr_schedules():
     from tacgnn.perception.train import lr_factor
 

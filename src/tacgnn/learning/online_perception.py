@@ -26,7 +26,7 @@ from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.train import load_checkpoint as load_perception_checkpoint
-from tacgnn.perception.train import make_model, rest_positions_cm
+from tacgnn.perception.train import backward_checked, make_model, rest_positions_cm
 
 
 @dataclass(frozen=True)
@@ -135,10 +135,7 @@ class OnlinePerception:
             for i in range(0, n, self.cfg.batch_size):
                 idx = order[i:i + self.cfg.batch_size]
                 loss = self.objective.loss(self.model(*self._inputs(idx)), self.labels[idx])
-                if not torch.isfinite(loss):
-                    raise FloatingPointError("perception loss is not finite; the update is abandoned")
-                self.optim.zero_grad(set_to_none=True)
-                loss.backward()
+                backward_checked(self.optim, loss, f"in perception update {self.updates + 1} (in-loop training)")
                 self.optim.step()
         self.updates += 1
         return {"perception/rmse_cm_before": before, "perception/rmse_cm_after": self._rmse(n),

@@ -20,6 +20,7 @@ They hold only tensors and plain Python data and are read with ``torch.load(weig
 from __future__ import annotations
 
 import argparse
+import copy
 import math
 import os
 import random
@@ -202,9 +203,41 @@ class _Runner(OnPolicyRunner):
         self.last_checkpoint: Path | None = None
         self._saved_iteration = -1
         self._final_iteration = -1
+        self._next_update = 1
+        self._unguarded_update = self.alg.update
+        self.alg.update = self._guarded_update
+
+    def _guarded_update(self) -> dict[str, float]:
+        """rsl_rl's PPO update, undone and reported if it leaves a loss or a weight NaN or Inf.
+
+        rsl_rl clips the gradient norm, but an infinite norm scales every gradient by 0 * inf
+        = NaN, and the optimiser then writes NaN into all weights, which the next rollout
+        would act on and the next checkpoint would keep. Here the update is rolled back
+        (models, optimiser, learning rate) and the run stops naming what went wrong; the
+        last checkpoint on disk is the one to resume from.
+        """
+        before = copy.deepcopy(self.alg.save())
+        losses, failure = {}, None
+        try:
+            losses = self._unguarded_update()
+        except RuntimeError as err:  # e.g. torch refusing a NaN action std in a later mini-batch
+            failure = err
+        bad = [f"loss {k}" for k, v in losses.items() if not math.isfinite(float(v))]
+        for name, model in (("actor", self.alg.actor), ("critic", self.alg.critic)):
+            bad += [f"{name} {p}" for p, t in model.named_parameters() if not torch.isfinite(t).all()]
+        if bad or failure:
+            self.alg.load(before, load_cfg=None, strict=True)
+            what = f"gave non-finite values ({', '.join(bad[:6])}{', ...' if len(bad) > 6 else ''})" if bad \
+                else f"failed ({failure})"
+            raise FloatingPointError(
+                f"PPO update {self._next_update} {what}; weights rolled back to before it. "
+                f"Last checkpoint: {self.last_checkpoint or 'none yet'}") from failure
+        self._next_update += 1
+        return losses
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         self._final_iteration = self.current_learning_iteration + num_learning_iterations
+        self._next_update = self.current_learning_iteration + 1  # counted from 1, as checkpoints are
         super().learn(num_learning_iterations, init_at_random_ep_len)
         # rsl_rl leaves the index of the last iteration; count completed ones, so that the
         # next learn() (perception in the loop calls it in chunks) starts at the next index

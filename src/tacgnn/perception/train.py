@@ -237,6 +237,22 @@ def load_model(path: str | Path) -> tuple[PerceptionModel, PerceptionTrainConfig
     return model.eval(), cfg, payload["dataset"]
 
 
+def backward_checked(optim: torch.optim.Optimizer, loss: torch.Tensor, where: str) -> None:
+    """Fill the gradients of `loss`, or raise before the optimiser can step on NaN or Inf.
+
+    A finite loss can still give an infinite gradient (an overflow in a layer); one such
+    step would write NaN into every weight. Raising here leaves the weights as they were
+    after the last good step, and the last checkpoint on disk intact.
+    """
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"non-finite loss ({float(loss.detach())}) {where}; weights left unchanged")
+    optim.zero_grad(set_to_none=True)
+    loss.backward()
+    grads = [p.grad for group in optim.param_groups for p in group["params"] if p.grad is not None]
+    if grads and not torch.isfinite(torch.nn.utils.get_total_norm(grads)):
+        raise FloatingPointError(f"non-finite gradient {where}; weights left unchanged")
+
+
 def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.Adam:
     """Adam; the fused kernel where this torch has it (~5x faster steps on CPU, same algorithm)."""
     try:
@@ -295,10 +311,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
         for i in range(0, len(order), cfg.batch_size):
             idx = order[i:i + cfg.batch_size]
             loss = objective.loss(model(*train_set.batch(idx)), train_set.targets[idx])
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"non-finite loss at epoch {epoch}, batch {batches}; weights left unchanged")
-            optim.zero_grad(set_to_none=True)
-            loss.backward()
+            backward_checked(optim, loss, f"at epoch {epoch}, batch {batches} of {run_dir}")
             if cfg.lr_schedule != "constant" or cfg.warmup_epochs > 0:
                 lr = cfg.lr * lr_factor(cfg, epoch * steps_per_epoch + batches, total_steps, steps_per_epoch)
                 for group in optim.param_groups:
