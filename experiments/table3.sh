@@ -36,7 +36,7 @@ TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
-resume() { [ -f "$1/config.yaml" ] && echo --resume || true; }
+resume() { compgen -G "$1/model_*.pt" >/dev/null && echo --resume || true; }  # a run with a checkpoint
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
 
 GT_SIMPLE=runs/gt_s0
