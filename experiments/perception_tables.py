@@ -36,9 +36,10 @@ PAPER_TABLE2 = {  # model: (train cm, test cm)
     "mlp": (0.230, 0.250), "cnn": (0.114, 27.76), "gcn": (0.130, 0.152), "tacgnn-32": (0.077, 0.096),
     "tacgnn-16": (0.340, 0.251), "tacgnn-64": (0.098, 0.085), "tacgnn-128": (0.069, 0.077),
 }
-# Table I's columns: the paper's four models; TacGNN at 32 channels (Table II's reference width)
-# and at 64 (session 4: 32 channels underfit the grasps, train error = test error)
-TABLE1_MODELS = (("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 64))
+# Table I's columns: the paper's four models; TacGNN at 32 channels (Table II's reference width),
+# at 64 (session 4: 32 channels underfit the grasps, train error = test error) and at 128
+TABLE1_MODELS = (("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 64), ("tacgnn", 128))
+OBJECTS = ("cube", "cylinder", "meat_can")
 CURVE_MODELS = (("mlp", 32), ("gcn", 32), ("tacgnn", 32))  # the dataset-size curve's models
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,7 +62,7 @@ def ensure_datasets(args) -> dict[str, Path]:
     baoding_data.generate(baoding_data.BaodingDataConfig(samples=args.test_samples, shard_size=args.test_samples,
                                                          seed=99, env=other, policy_checkpoint=str(GT_POLICY)),
                           paths["baoding_other_pitch"])
-    for obj in ("cube", "cylinder", "meat_can"):
+    for obj in OBJECTS:
         paths[obj] = ROOT / "data" / f"{obj}_{args.grasp_samples}"
         grasp_data.generate(grasp_data.GraspDataConfig(samples=args.grasp_samples, shard_size=args.shard,
                                                        grasp=GraspConfig(object=obj)), paths[obj])
@@ -146,7 +147,9 @@ def main() -> None:
                              "docs/perception_data_curve.md and stop")
     parser.add_argument("--models", nargs="+", default=None, metavar="NAME",
                         help="with --only-table1 or --only-curve: train only these models "
-                             "(mlp cnn gcn tacgnn-32 tacgnn-64)")
+                             "(mlp cnn gcn tacgnn-32 tacgnn-64 tacgnn-128)")
+    parser.add_argument("--objects", nargs="+", default=list(OBJECTS), choices=OBJECTS, metavar="OBJECT",
+                        help="with --only-table1: train only these objects (default: all three)")
     parser.add_argument("--report", action="store_true",
                         help="train nothing: write the page from the runs that are complete ('not run' for others)")
     parser.add_argument("--paper-setup", action="store_true",
@@ -186,7 +189,7 @@ def main() -> None:
     if args.only_table1:
         for s in seeds:  # seed-major: an interrupted invocation leaves whole seeds behind
             for m, ch in chosen(TABLE1_MODELS, args):
-                for obj in ("cube", "cylinder", "meat_can"):
+                for obj in args.objects:
                     run(obj, m, ch, s, data[obj], args)
         args.report = True  # the page shows the complete runs; columns left out by --models stay "not run"
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
@@ -292,7 +295,7 @@ def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:
     lines = ["", "## Table I: object pose after a power grasp (test RMSE: position cm / orientation deg)", "",
              f"| object | metric | {ours_head} | paper MLP | paper CNN | paper GCN | paper TacGNN |",
              "|---|---|" + "---|" * (len(TABLE1_MODELS) + 4)]
-    for obj in ("cube", "cylinder", "meat_can"):
+    for obj in OBJECTS:
         res = {(m, ch): [r for s in seeds if (r := run(obj, m, ch, s, data[obj], args))] for m, ch in TABLE1_MODELS}
         for metric, idx, label in (("test/position_rmse_cm", 0, "position (cm)"),
                                    ("test/orientation_rmse_deg", 1, "orientation (deg)")):
