@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Domain randomisation on vs off, from scratch on the Simple task with true ball positions,
 # each evaluated on the nominal hand and on an "other hand" outside the randomisation ranges
-# (stiffness x0.7, damping x1.5, 0.25 kg balls, friction x0.7): a stand-in for a real hand.
+# (stiffness x0.7, damping x1.5, 0.25 kg balls, friction x0.7), and on that change applied
+# twice and three times: stand-ins for a real hand.
 #
 #   experiments/domain_randomisation.sh [ITERATIONS] [SEED]
 #
 # DR off is the ground-truth policy runs/gt_s$SEED (table3.sh trains it, 1,000 iterations);
 # DR on is runs/dr_on_s$SEED, the same recipe with randomization.enabled=true. Both are
 # evaluated at 1,000 iterations (equal training), DR on also at ITERATIONS (default 2000):
-# results/dr_{off,on}_s$SEED_model_NNNNNN_{nominal,other_hand}.json, 256 episodes each.
+# results/dr_{off,on}_s$SEED_model_NNNNNN_{nominal,other_hand_x1,_x2,_x3}.json, 256 episodes each.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ITERS=${1:-2000}
@@ -19,11 +20,14 @@ RESUME=$(compgen -G "$RUN/model_*.pt" >/dev/null && echo --resume || true)
 [ -f "$(printf "%s/model_%06d.pt" $RUN $ITERS)" ] || $T train-policy --run-dir $RUN $RESUME \
   --env tactile=false randomization.enabled=true --ppo max_iterations=$ITERS save_interval=100 seed=$SEED
 NOMINAL="randomization.enabled=false"
-OTHER="randomization.enabled=false hand.stiffness=2.1 hand.damping=0.15 ball_mass=0.25 ball_friction=0.7 hand.friction=0.7"
+other_hand() {  # other_hand K: the perturbation applied K times (K=1: stiffness x0.7, damping x1.5,
+                # 0.25 kg balls, friction x0.7; the randomisation draws at most x0.8 / x1.2 / 0.2 kg / x0.8)
+  awk -v k=$1 'BEGIN { printf "randomization.enabled=false hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }'
+}
 evaluate() {  # evaluate TAG CHECKPOINT
-  for hand in nominal other_hand; do
+  for hand in nominal other_hand_x1 other_hand_x2 other_hand_x3; do
     out=results/$1_$(basename $2 .pt)_$hand.json
-    set_=$NOMINAL; [ $hand = other_hand ] && set_=$OTHER
+    set_=$NOMINAL; [ $hand != nominal ] && set_=$(other_hand ${hand#other_hand_x})
     [ -f $out ] || $T evaluate $2 --task simple --episodes 256 --envs 128 --out $out --set $set_
   done
 }
