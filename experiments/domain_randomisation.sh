@@ -15,9 +15,9 @@ cd "$(dirname "$0")/.."
 ITERS=${1:-2000}
 SEED=${2:-0}
 T=.venv/bin/tacgnn
+source experiments/lib.sh  # resume, last
 RUN=runs/dr_on_s$SEED
-RESUME=$(compgen -G "$RUN/model_*.pt" >/dev/null && echo --resume || true)
-[ -f "$(printf "%s/model_%06d.pt" $RUN $ITERS)" ] || $T train-policy --run-dir $RUN $RESUME \
+[ -f "$(last $RUN $ITERS)" ] || $T train-policy --run-dir $RUN $(resume $RUN) \
   --env tactile=false randomization.enabled=true --ppo max_iterations=$ITERS save_interval=100 seed=$SEED
 NOMINAL="randomization.enabled=false"
 other_hand() {  # other_hand K: the perturbation applied K times (K=1: stiffness x0.7, damping x1.5,
@@ -31,6 +31,6 @@ evaluate() {  # evaluate TAG CHECKPOINT
     [ -f $out ] || $T evaluate $2 --task simple --episodes 256 --envs 128 --out $out --set $set_
   done
 }
-evaluate dr_off_s$SEED runs/gt_s$SEED/model_001000.pt
-evaluate dr_on_s$SEED $RUN/model_001000.pt
-evaluate dr_on_s$SEED $(printf "%s/model_%06d.pt" $RUN $ITERS)
+evaluate dr_off_s$SEED "$(last runs/gt_s$SEED 1000)"
+evaluate dr_on_s$SEED "$(last $RUN 1000)"
+evaluate dr_on_s$SEED "$(last $RUN $ITERS)"

@@ -14,7 +14,7 @@ cd "$(dirname "$0")/.."
 MODE=${1:?usage: experiments/fig4c.sh MODE [ITERATIONS] [SEED]}
 ITERS=${2:-1000}
 SEED=${3:-0}
+source experiments/lib.sh  # resume, last
 RUN=runs/abl_${MODE}_s$SEED
-RESUME=$(compgen -G "$RUN/model_*.pt" >/dev/null && echo --resume || true)
-[ -f "$(printf "%s/model_%06d.pt" $RUN $ITERS)" ] || .venv/bin/tacgnn train-policy --run-dir $RUN $RESUME \
+[ -f "$(last $RUN $ITERS)" ] || .venv/bin/tacgnn train-policy --run-dir $RUN $(resume $RUN) \
   --env tactile=false obs_mode=$MODE --ppo max_iterations=$ITERS save_interval=100 seed=$SEED

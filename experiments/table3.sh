@@ -36,8 +36,7 @@ TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
-resume() { compgen -G "$1/model_*.pt" >/dev/null && echo --resume || true; }  # a run with a checkpoint
-last() { printf "%s/model_%06d.pt" "$1" "$2"; }
+source experiments/lib.sh  # resume, last
 
 GT_SIMPLE=runs/gt_s0
 GT_SIMPLE_ITERS=${GT_SIMPLE_ITERS:-2500}

@@ -19,6 +19,7 @@ import torch
 torch.set_num_threads(1)
 from tacgnn.config import from_dict  # noqa: E402
 from tacgnn.datasets.store import read_manifest  # noqa: E402
+from tacgnn.envs.baoding import BaodingConfig  # noqa: E402
 from tacgnn.hand.skin_layout import SkinLayout  # noqa: E402
 from tacgnn.perception.train import load_model, load_tactile, predict, split  # noqa: E402
 
@@ -38,7 +39,7 @@ def main() -> None:
     train_set, test = split(data, cfg.train_fraction, cfg.seed)
     skin = from_dict(SkinLayout, read_manifest(dataset)["metadata"]["skin"])
     palm = skin.patch_index() == 0
-    radius_cm = 2.625
+    radius_cm = 100 * BaodingConfig().ball_radius
 
     def palm_only_balls(d):
         """Per ball: its taxels (mask), and whether they are all on the palm (and some are)."""
