@@ -12,6 +12,9 @@
 #                   (default 2500); trained first if its checkpoint is missing
 #   WARMUP=k        (environment) k perception warm-up rounds before PPO moves the policy (DAgger
 #                   for the perception, not in the paper; default 0); runs are tagged _wuK
+#   LR=x            (environment) PPO learning rate of the blind fine-tuning, default 0.0001 (runs
+#                   tagged _lr0.0001). LR=0.0003 is the recipe of sessions 2-6, whose runs carry no
+#                   tag: it breaks the starting policy in the first iterations (docs/results.md, 10)
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
 # 2. its rollouts as the perception dataset (50,000 frames, from the first step; recorded on the
@@ -31,8 +34,9 @@ SEED=${2:-0}
 ITERS=${3:-1200}
 PSET=${4:-}
 WARMUP=${WARMUP:-0}
+LR=${LR:-0.0001}
 JOINTS=$( [ -n "$PSET" ] && echo "_joints" || true )
-TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )
+TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )$( [ "$LR" != 0.0003 ] && echo "_lr$LR" || true )
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
@@ -58,7 +62,7 @@ fi
 RUN=runs/blind_${TAG}_hard_s$SEED
 if [ ! -f "$(last $RUN $ITERS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hard --ppo max_iterations=$ITERS \
-    save_interval=100 init_from="$(last $GT 2000)" init_noise_std=0.2 learning_rate=0.0003 schedule=fixed \
+    save_interval=100 init_from="$(last $GT 2000)" init_noise_std=0.2 learning_rate=$LR schedule=fixed \
     privileged_critic=true \
     seed=$SEED --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt epochs=2 \
     update_every_steps=400 warmup_rounds=$WARMUP

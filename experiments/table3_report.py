@@ -32,6 +32,8 @@ ROWS = [("mlp", "MLP", "mlp"), ("cnn", "CNN", "cnn"), ("gcn", "GCN", "gcn"), ("t
         ("gcn_wu4", "GCN, 4 perception warm-up rounds (beyond the paper)", "gcn"),
         ("tacgnn_wu4", "TacGNN-32, 4 perception warm-up rounds (beyond the paper)", "tacgnn"),
         ("tacgnn_joints", "TacGNN-32 + joint angles (beyond the paper)", None)]
+ROWS += [(f"{model}_wu4_lr0.0001", f"{label}, warm-up, PPO learning rate 1e-4 (session 7)", model)
+         for model, label in (("mlp", "MLP"), ("cnn", "CNN"), ("gcn", "GCN"), ("tacgnn", "TacGNN-32"))]
 
 
 def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[dict]]:
@@ -76,6 +78,9 @@ def main() -> None:
              f"checkpoint inside a longer run: `tacgnn evaluate RUN/model_{args.iterations:06d}.pt --task all "
              "--episodes 512 --envs 128 --out results/RUN_model_NNNNNN.json`), then "
              f"`.venv/bin/python experiments/table3_report.py --iterations {args.iterations}`. "
+             "Rows not marked \"learning rate 1e-4\" ran at the blind stage's old learning rate "
+             "(sessions 2-6): prefix `LR=0.0003` to remake them, and `WARMUP=4 GT_SEED=0` for the "
+             "warm-up rows. "
              "Each cell: success % pooled over all episodes of all seeds, [Wilson 95 % interval], "
              "(each seed's rate), mean steps to success. The paper's figures follow in the same row.", "",
              "| perception | Simple | Middle | Hard | paper Simple / Middle / Hard | paper steps |",

@@ -155,3 +155,59 @@ def test_online_update_with_a_non_finite_loss_or_gradient_leaves_the_model_as_it
     assert changed  # the first batch stepped ...
     assert all(torch.isfinite(after[k]).all() for k in after)  # ... the poisoned one did not
     assert perception.updates == 0
+
+
+def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
+    """--perception: a ground-truth policy reads the ball positions a perception checkpoint
+    predicts (after ball tracking), and files that cannot supply them are named."""
+    import torch
+
+    import tacgnn.learning.evaluate as evaluation
+    from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
+    from tacgnn.learning.online_perception import OnlinePerception
+    from tacgnn.perception.train import PerceptionTrainConfig
+    from tacgnn.perception.train import train as train_perception
+
+    train(BaodingConfig(tactile=False), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "gt")
+    gt_policy = tmp_path / "gt" / "model_000001.pt"
+    generate(BaodingDataConfig(samples=64, shard_size=64, num_envs=16), tmp_path / "data")
+    train_perception(PerceptionTrainConfig.for_task("baoding", "mlp", epochs=1), tmp_path / "data",
+                     tmp_path / "perc", log=lambda *_: None)
+    perc = tmp_path / "perc" / "checkpoint.pt"
+
+    seen, predicted = [], []
+    load_policy = evaluation.load_policy
+
+    def spying_load_policy(path):
+        policy, cfg = load_policy(path)
+        return (lambda obs: seen.append(obs[:, 32:38].copy()) or policy(obs)), cfg
+
+    call = OnlinePerception.__call__
+    monkeypatch.setattr(evaluation, "load_policy", spying_load_policy)
+    monkeypatch.setattr(OnlinePerception, "__call__", lambda self, *a: predicted.append(call(self, *a)) or predicted[-1])
+    out = evaluation.evaluate(gt_policy, "simple", episodes=2, num_envs=2, perception_from=perc)
+    assert out["episodes"] == 2 and len(seen) > 1
+    # every ball position the policy read is one the perception predicted, up to which ball is which
+    made = np.concatenate(predicted)
+    made = np.concatenate([made, np.roll(made, 3, axis=1)])
+    read = np.concatenate(seen)
+    gap = np.abs(read[:, None, :] - made[None]).max(-1).min(1)  # to the nearest prediction, m
+    assert gap.max() < 1e-6
+    monkeypatch.undo()
+
+    with pytest.raises(ValueError, match="trained without a perception"):
+        evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=gt_policy)
+    payload = torch.load(perc, weights_only=True)
+    payload["config"]["task"] = "cube"
+    torch.save(payload, tmp_path / "cube.pt")
+    with pytest.raises(ValueError, match="'cube' task"):
+        evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=tmp_path / "cube.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="neither a perception checkpoint nor a policy"):
+        evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=tmp_path / "junk.pt")
+    with pytest.raises(FileNotFoundError):
+        evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=tmp_path / "missing.pt")
+    train(BaodingConfig(tactile=False, obs_mode="finger_torque"), PPOConfig(num_envs=4, max_iterations=1),
+          tmp_path / "torque")
+    with pytest.raises(ValueError, match="finger_torque"):
+        evaluation.evaluate(tmp_path / "torque" / "model_000001.pt", episodes=1, num_envs=1, perception_from=perc)

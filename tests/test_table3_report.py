@@ -57,3 +57,23 @@ def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
         f"**0.0** [0.0-{100 * wilson_interval(0, 100)[1]:.1f}] (0.0); no success"
     _write(tmp_path / "blind_mlp_hard_s1_model_000800.json", (0.5, 0.5, 0.5), steps=30.0)
     assert report.pooled_cells(report.collect(tmp_path, "blind_mlp_hard", 800))[0].endswith("(0.0 / 50.0); 30 steps")
+
+
+def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
+    spec = importlib.util.spec_from_file_location("swap_report", SCRIPT.parent / "perception_swap_report.py")
+    swap = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(swap)
+    _write(tmp_path / "gt_hard_s0_model_002000.json", (0.99, 0.98, 0.96))
+    _write(tmp_path / "swap_gt__gthard_s0_tacgnn_pi.json", (0.8, 0.7, 0.6))
+    _write(tmp_path / "swap_gt__gthard_s1_tacgnn_pi.json", (0.6, 0.5, 0.4))
+    _write(tmp_path / "swap_gt__gthard_s0_cnn_pi.json", (0.5, 0.5, 0.5))
+    _write(tmp_path / "swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json", (0.9, 0.9, 0.9))
+    _write(tmp_path / "swap_tacgnn_s1_policy__cnn_s1_perception.json", (0.3, 0.2, 0.1))
+    text = swap.table(tmp_path)
+    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines()}
+    lo, hi = wilson_interval(140, 200)
+    assert f"70.0 [{100 * lo:.1f}-{100 * hi:.1f}] (80.0 / 60.0)" in rows["TacGNN-32, trained offline (s0, s1)"]
+    assert "| 50.0 [" in rows["CNN, trained offline (s0)"]
+    assert "| 90.0 [" in rows["CNN, trained in the loop (s1 @600)"]
+    assert "| 99.0 [" in rows["true ball positions (the policy's own training input)"]
+    assert rows["tacgnn_s1"].startswith("| tacgnn_s1 | cnn_s1 | 30.0 [")

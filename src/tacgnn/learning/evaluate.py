@@ -2,6 +2,11 @@
 
     python -m tacgnn.learning.evaluate runs/gt/model_005000.pt --task middle --episodes 500
 
+`--perception FILE` runs the policy on another perception's ball positions (a perception
+checkpoint, or the perception inside another blind policy): a ground-truth policy made
+blind, or two blind policies with their perceptions exchanged, judge perception and
+control apart.
+
 Episodes are counted per env, each env contributing a fixed quota (episodes / num_envs).
 Counting whatever ends first would over-represent short episodes (quick successes and
 quick falls), biasing the rate; with a per-env quota every counted episode is an
@@ -20,9 +25,12 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
-from tacgnn.config import override, parse_overrides
+from tacgnn.config import override, parse_overrides, to_dict
 from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.ppo import load_perception, load_policy
+from tacgnn.perception.models import PerceptionModelConfig
+from tacgnn.perception.train import load_checkpoint as load_perception_checkpoint
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -42,16 +50,37 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float,
     return (lo, hi)
 
 
+def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
+    """The frozen perception in `path`: a `train-perception` checkpoint for the Baoding balls,
+    or the perception a 'perceived' policy checkpoint was trained with."""
+    try:
+        payload = load_perception_checkpoint(path)  # FileNotFoundError if missing
+    except ValueError:
+        payload = None  # not a perception checkpoint: perhaps a policy
+    if payload is not None:
+        model = PerceptionModelConfig(name=payload["config"]["model"]["name"])
+        cfg = OnlinePerceptionConfig(model=model, pretrained=str(path), buffer_size=32, batch_size=32, epochs=0)
+        return OnlinePerception(cfg, skin)
+    try:
+        perception = load_perception(path)
+    except ValueError as err:
+        raise ValueError(f"{path}: neither a perception checkpoint nor a policy checkpoint ({err})") from None
+    if perception is None:
+        raise ValueError(f"{path}: a policy trained without a perception (not obs_mode 'perceived')")
+    return perception
+
+
 def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] = "simple", episodes: int = 100,
              num_envs: int = 64, seed: int = 0,
              perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-             env_overrides: dict[str, Any] | None = None) -> dict:
+             env_overrides: dict[str, Any] | None = None, perception_from: str | Path | None = None) -> dict:
     """Run the deterministic policy of `checkpoint` on `task` until `episodes` episodes ended.
 
     The env is the one the policy was trained in (obs mode, physics, randomisation) with
     the task, number of envs and seed replaced, and `env_overrides` (dotted config keys,
     e.g. ``{"hand.stiffness": 2.0, "randomization.enabled": False}``: another hand than the
-    one trained on) applied. Returns success_rate, mean_steps_to_success
+    one trained on) applied. With `perception_from` (see `perception_from_file`) a policy
+    that reads ball positions ('groundtruth' or 'perceived') reads that perception's. Returns success_rate, mean_steps_to_success
     (NaN without successes), ci95 (Wilson) of the success rate, episodes, plus fall_rate
     and mean_final_angle_deg.
     """
@@ -60,6 +89,12 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
     if episodes < 1 or num_envs < 1:
         raise ValueError("episodes and num_envs must be >= 1")
     policy, env_cfg = load_policy(checkpoint)
+    if perception_from is not None:
+        if env_cfg.obs_mode not in ("groundtruth", "perceived"):
+            raise ValueError(f"{checkpoint}: a policy of obs_mode '{env_cfg.obs_mode}' does not read ball "
+                             "positions; --perception needs a 'groundtruth' or 'perceived' policy")
+        perception = perception_from_file(perception_from, to_dict(env_cfg.skin))
+        env_cfg = replace(env_cfg, obs_mode="perceived", tactile=True)
     if perception is None and env_cfg.obs_mode == "perceived":
         perception = load_perception(checkpoint)
     n = min(num_envs, episodes)
@@ -101,17 +136,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="also write the results as JSON here")
+    parser.add_argument("--perception", type=Path, metavar="FILE",
+                        help="run the policy on this perception's ball positions: a perception checkpoint "
+                             "(tacgnn train-perception) or a blind policy checkpoint")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="env config changes for the evaluation, e.g. hand.stiffness=2.0 ball_mass=0.25")
     args = parser.parse_args(argv)
     tasks = ("simple", "middle", "hard") if args.task == "all" else (args.task,)
     changes = parse_overrides(args.set)
-    results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed, env_overrides=changes)
-               for task in tasks]
+    results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed, env_overrides=changes,
+                        perception_from=args.perception) for task in tasks]
     for r in results:
         r["env_overrides"] = changes
+        r["perception"] = None if args.perception is None else str(args.perception)
     print(f"{args.checkpoint}: {args.episodes} episodes per task, deterministic policy"
-          + (f", env changed: {' '.join(args.set)}" if args.set else ""))
+          + (f", env changed: {' '.join(args.set)}" if args.set else "")
+          + (f", ball positions from {args.perception}" if args.perception else ""))
     print(f"{'task':8s} {'success':>8s} {'95% CI':>13s} {'steps':>6s} {'falls':>6s}")
     for r in results:
         lo, hi = r["ci95"]

@@ -68,6 +68,14 @@ class OnlinePerception:
         num_taxels = from_dict(SkinLayout, skin).num_taxels
         payload = load_perception_checkpoint(cfg.pretrained) if cfg.pretrained else None
         if payload is not None:
+            task = payload["config"].get("task")
+            if task != "baoding":
+                raise ValueError(f"{cfg.pretrained}: a perception trained for the {task!r} task; "
+                                 "the Baoding env needs one that predicts ball positions ('baoding')")
+            trained_on = payload.get("dataset", {}).get("num_taxels")
+            if trained_on is not None and trained_on != num_taxels:
+                raise ValueError(f"{cfg.pretrained}: trained on a skin of {trained_on} taxels, "
+                                 f"this env's skin has {num_taxels}")
             # the checkpoint defines the architecture; the config only has to agree on the model kind
             stored = from_dict(PerceptionModelConfig, payload["config"]["model"])
             if stored.name != cfg.model.name:

@@ -110,7 +110,10 @@ class PPOConfig:
     """Seed of torch, numpy and Python's global RNGs; the env's own stream is the env config's seed."""
     init_from: str = ""
     """A checkpoint whose actor and critic (with their normalisers) start this run, e.g. a
-    ground-truth policy to fine-tune with perceived ball positions; '' = random init."""
+    ground-truth policy to fine-tune with perceived ball positions; '' = random init.
+    Fine-tuning wants a small step: with a fresh Adam, one iteration at a fixed 3e-4 takes
+    the ground-truth Hard policy from 98.6 % to 58.2 % on Simple, at 1e-4 it keeps 98.6 %
+    (experiments/finetune_lr.sh)."""
     privileged_critic: bool = False
     """The critic reads the ground-truth observation (true ball positions) while the actor reads
     the env's own (perceived, noisy or none); only training uses the critic, so the policy stays

@@ -217,6 +217,8 @@ def load_checkpoint(path: str | Path) -> dict:
         raise ValueError(f"{path}: not a readable checkpoint ({type(err).__name__}: {err})") from None
     if not isinstance(payload, dict) or payload.get("format_version") != CHECKPOINT_VERSION:
         raise ValueError(f"{path}: not a tacgnn perception checkpoint of version {CHECKPOINT_VERSION}")
+    if not {"config", "model", "dataset"} <= payload.keys():  # e.g. a policy checkpoint
+        raise ValueError(f"{path}: not a tacgnn perception checkpoint (no model, config and dataset)")
     config = payload.get("config")
     if isinstance(config, dict):  # written before these keys existed: it was trained with their old values
         for key, value in LEGACY_TRAIN_VALUES.items():

@@ -1,0 +1,81 @@
+"""The perception-swap table from the evaluations experiments/perception_swap.sh wrote.
+
+    .venv/bin/python experiments/perception_swap_report.py [--out docs/perception_swap.md]
+
+One policy, many perceptions: success % on Simple / Middle / Hard (512 episodes each,
+Wilson 95 % intervals), seeds of one perception model pooled in one row with the seeds'
+own rates beside it. The first row is the same policy reading the true ball positions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+from tacgnn.learning.evaluate import wilson_interval
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = ("simple", "middle", "hard")
+MODELS = ("tacgnn", "cnn", "gcn", "mlp")
+LABEL = {"tacgnn": "TacGNN-32", "cnn": "CNN", "gcn": "GCN", "mlp": "MLP"}
+# results/swap_gt__gthard_s0_cnn_pi.json, results/swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json
+OFFLINE = re.compile(r"swap_gt__gthard_s(\d+)_(\w+?)_pi\.json")
+IN_LOOP = re.compile(r"swap_gt__blind_([a-z]+)_(?:wu\d+_)?(?:lr[\d.]+_)?hard_s(\d+)_model_(\d+)\.json")
+
+
+def cells(records_by_seed: dict[str, list[dict]]) -> list[str]:
+    """Pooled rate [CI] (seed rates) for each task."""
+    out = []
+    for task in TASKS:
+        recs = {seed: next(r for r in recs if r["task"] == task) for seed, recs in records_by_seed.items()}
+        n = sum(r["episodes"] for r in recs.values())
+        wins = sum(round(r["success_rate"] * r["episodes"]) for r in recs.values())
+        lo, hi = wilson_interval(wins, n)
+        seeds = " / ".join(f"{100 * r['success_rate']:.1f}" for r in recs.values())
+        out.append(f"{100 * wins / n:.1f} [{100 * lo:.1f}-{100 * hi:.1f}]" + (f" ({seeds})" if len(recs) > 1 else ""))
+    return out
+
+
+def table(results: Path) -> str:
+    rows = []
+    teacher = results / "gt_hard_s0_model_002000.json"
+    if teacher.is_file():
+        rows.append(("true ball positions (the policy's own training input)", {"-": json.loads(teacher.read_text())}))
+    for kind, pattern in (("offline", OFFLINE), ("in the loop", IN_LOOP)):
+        groups: dict[str, dict[str, list[dict]]] = {}
+        for path in sorted(results.glob("swap_gt__*.json")):
+            if m := pattern.fullmatch(path.name):
+                model, seed = (m.group(2), m.group(1)) if kind == "offline" else (m.group(1), m.group(2))
+                label = f"s{seed}" if kind == "offline" else f"s{seed} @{int(m.group(3))}"
+                groups.setdefault(model, {})[label] = json.loads(path.read_text())
+        for model in MODELS:
+            if model in groups:
+                seeds = ", ".join(groups[model])
+                rows.append((f"{LABEL[model]}, trained {kind} ({seeds})", groups[model]))
+    lines = ["| ball positions from | Simple | Middle | Hard |", "| --- | --- | --- | --- |"]
+    lines += [f"| {name} | " + " | ".join(cells(recs)) + " |" for name, recs in rows]
+    cross = sorted(results.glob("swap_*_policy__*_perception.json"))
+    if cross:
+        lines += ["", "| policy trained with | perception from | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
+        for path in cross:
+            policy, perception = path.stem.removeprefix("swap_").split("__")
+            lines.append(f"| {policy.removesuffix('_policy')} | {perception.removesuffix('_perception')} | "
+                         + " | ".join(cells({"-": json.loads(path.read_text())})) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--results", type=Path, default=ROOT / "results")
+    parser.add_argument("--out", type=Path, help="also write the table here")
+    args = parser.parse_args()
+    text = table(args.results)
+    print(text)
+    if args.out:
+        args.out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()
