@@ -80,9 +80,9 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
     the task, number of envs and seed replaced, and `env_overrides` (dotted config keys,
     e.g. ``{"hand.stiffness": 2.0, "randomization.enabled": False}``: another hand than the
     one trained on) applied. With `perception_from` (see `perception_from_file`) a policy
-    that reads ball positions ('groundtruth' or 'perceived') reads that perception's. Returns success_rate, mean_steps_to_success
-    (NaN without successes), ci95 (Wilson) of the success rate, episodes, plus fall_rate
-    and mean_final_angle_deg.
+    that reads ball positions ('groundtruth' or 'perceived') reads that perception's.
+    Returns success_rate, mean_steps_to_success (NaN without successes), ci95 (Wilson) of
+    the success rate, episodes, plus fall_rate and mean_final_angle_deg.
     """
     if task not in ("simple", "middle", "hard"):
         raise ValueError(f"task must be 'simple', 'middle' or 'hard', got {task!r}")
