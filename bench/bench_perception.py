@@ -9,7 +9,9 @@ Prints:
   * TacGNN-32 training time for 10 epochs x 25,000 samples at batch 32 with
     Adam (target < 2 min), 1 thread unless ``--train-threads 1 2``. By
     default 400 of the 7,820 steps are timed and scaled up (clearly
-    labelled); ``--full`` trains all 10 epochs.
+    labelled); ``--full`` trains all 10 epochs;
+  * every model's training step at batch 32 on 1 thread, and the time of one
+    in-loop perception update of a blind policy run (2 epochs x 25,600 frames).
 
 Timing: several rounds, the best round is the headline (the 2 cores are
 shared with other work, so the median is printed too, as is the load
@@ -33,7 +35,7 @@ import time
 import torch
 import torch.nn.functional as F
 
-from tacgnn.perception.models import PerceptionModelConfig, build_model, keep_freed_memory
+from tacgnn.perception.models import MODEL_NAMES, PerceptionModelConfig, build_model, keep_freed_memory
 from tacgnn.perception.train import TRAIN_MODEL_DEFAULTS, default_model_config, make_optimizer
 
 T = 653
@@ -172,6 +174,17 @@ def main() -> None:
         how = "measured" if args.full else f"EXTRAPOLATED from {steps} of {total_steps} steps ({secs:.1f} s)"
         print(f"TacGNN-32 (training defaults) training, {epochs} epochs x {n_train:,} samples, batch {batch}, Adam, "
               f"{threads} thread(s): {full:.0f} s [{how}; load {load()}]")
+
+    # the in-loop perception update of a blind policy run: 2 epochs on 25,600 frames at batch 32
+    torch.set_num_threads(1)
+    update_steps = 2 * 25_600 // batch
+    for name in MODEL_NAMES:
+        model = (build_model(default_model_config(name="tacgnn", channels=32)) if name == "tacgnn"
+                 else build_model(name, rest_positions=rest))
+        train_seconds(model, tr, off, tg, rest, steps=10)  # warm-up
+        secs = min(train_seconds(model, tr, off, tg, rest, steps=100) for _ in range(3)) / 100
+        print(f"{name.upper()} training step, batch {batch}, 1 thread: {1e3 * secs:.1f} ms best of 3 x 100 steps; "
+              f"in-loop update (2 epochs x 25,600 frames) {secs * update_steps:.0f} s [load {load()}]")
 
 
 if __name__ == "__main__":

@@ -186,7 +186,8 @@ def test_forward_pyg_matches_forward(rest):
 
 
 def test_gcn_matches_pyg_gcnconv_with_normalisation(rest):
-    """The precomputed normalised adjacency equals GCNConv(normalize=True) on a batched graph."""
+    """The precomputed normalised adjacency equals GCNConv(normalize=True) on a batched graph,
+    outputs and gradients (the model's backward pass reuses the symmetric adjacency)."""
     from torch_geometric.nn import GCNConv
     from torch_geometric.utils import to_undirected
 
@@ -199,14 +200,25 @@ def test_gcn_matches_pyg_gcnconv_with_normalisation(rest):
     assert edge_index.shape[1] >= 6 * T
     batched = torch.cat([edge_index + g * T for g in range(3)], 1)
     x = torch.cat([readings.unsqueeze(-1), positions], -1).reshape(3 * T, 4)
+    refs = []
     for conv in model.convs:
-        ref = GCNConv(conv.in_channels, conv.out_channels)
+        refs.append(ref := GCNConv(conv.in_channels, conv.out_channels))
         ref.lin.weight.data.copy_(conv.lin.weight)
         ref.bias.data.copy_(conv.bias)
         x = torch.relu(ref(x, batched))
-    with torch.no_grad():
-        expected = model.head(x.view(3, T, -1).amax(1))
-        torch.testing.assert_close(model(readings, positions), expected, atol=1e-5, rtol=1e-5)
+    expected = model.head(x.view(3, T, -1).amax(1))
+    out = model(readings, positions)
+    torch.testing.assert_close(out, expected, atol=1e-5, rtol=1e-5)
+    target = torch.randn_like(out)
+    ((out - target) ** 2).sum().backward()
+    head_grads = [p.grad.clone() for p in model.head.parameters()]
+    model.head.zero_grad()
+    ((expected - target) ** 2).sum().backward()
+    for conv, ref in zip(model.convs, refs):
+        torch.testing.assert_close(conv.lin.weight.grad, ref.lin.weight.grad, atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(conv.bias.grad, ref.bias.grad, atol=1e-4, rtol=1e-4)
+    for got, p in zip(head_grads, model.head.parameters()):
+        torch.testing.assert_close(got, p.grad, atol=1e-4, rtol=1e-4)
 
 
 def test_cnn_layout_packing(rest):

@@ -585,7 +585,7 @@ class TactileCNN(PerceptionModel):
     Taxel ``t`` goes to pixel ``layout[t] = (row, col)``; the default layout
     is row-major (pixel ``t``), the remaining pixels are 0. Network:
 
-    ``conv3x3(1->32) ReLU maxpool2 -> conv3x3(32->16) ReLU maxpool2 -> flatten``
+    ``conv3x3(1->32) maxpool2 ReLU -> conv3x3(32->16) maxpool2 ReLU -> flatten``
     ``-> Linear(->128) ReLU -> Linear(->out)``
 
     (valid convolutions: 36 -> 34 -> 17 -> 15 -> 7, i.e. 16 x 7 x 7 = 784
@@ -616,11 +616,13 @@ class TactileCNN(PerceptionModel):
             if pixel.unique().numel() != num_taxels:
                 raise ValueError("layout maps two taxels to the same pixel")
         self.register_buffer("pixel", pixel, persistent=False)
+        # max-pool before ReLU: the same function (ReLU is monotone) on a quarter of the
+        # pixels; channels-last weights and images: ~2x faster on CPU (bench_perception.py)
         self.features = nn.Sequential(
-            nn.Conv2d(1, 32, 3), nn.ReLU(), nn.MaxPool2d(2),
-            nn.Conv2d(32, 16, 3), nn.ReLU(), nn.MaxPool2d(2),
+            nn.Conv2d(1, 32, 3), nn.MaxPool2d(2), nn.ReLU(),
+            nn.Conv2d(32, 16, 3), nn.MaxPool2d(2), nn.ReLU(),
             nn.Flatten(),
-        )
+        ).to(memory_format=torch.channels_last)
         side = ((S - 2) // 2 - 2) // 2
         self.head = _mlp([16 * side * side, 128, out_dim])
 
@@ -632,7 +634,40 @@ class TactileCNN(PerceptionModel):
         B, S = readings.shape[0], self.image_size
         img = readings.new_zeros(B, S * S)
         img[:, self.pixel] = readings
-        return self.head(self.features(img.view(B, 1, S, S)))
+        return self.head(self.features(img.view(B, 1, S, S).contiguous(memory_format=torch.channels_last)))
+
+
+class _SymmetricSparseMM(torch.autograd.Function):
+    """``adj @ x`` for a symmetric sparse ``adj``, whose gradient is ``adj @ grad``.
+
+    ``torch.sparse.mm``'s own backward transposes the CSR matrix, which sorts its
+    B x 5,000 entries on every training step: two thirds of the GCN's training
+    time. A symmetric matrix is its own transpose, so the sort is not needed.
+    """
+
+    @staticmethod
+    def forward(ctx, adj: Tensor, x: Tensor) -> Tensor:
+        ctx.adj = adj
+        return torch.sparse.mm(adj, x)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> tuple[None, Tensor]:
+        return None, torch.sparse.mm(ctx.adj, grad)
+
+
+def _symmetric_gcn_conv(in_channels: int, out_channels: int) -> nn.Module:
+    """``GCNConv(normalize=False)`` that propagates with :class:`_SymmetricSparseMM`.
+
+    Same parameters and outputs as GCNConv (``message_and_aggregate`` is PyG's hook
+    for sparse propagation); only valid for a symmetric adjacency.
+    """
+    from torch_geometric.nn import GCNConv
+
+    class SymmetricGCNConv(GCNConv):
+        def message_and_aggregate(self, adj_t: Tensor, x: Tensor) -> Tensor:
+            return _SymmetricSparseMM.apply(adj_t, x)
+
+    return SymmetricGCNConv(in_channels, out_channels, normalize=False)
 
 
 class TactileGCN(PerceptionModel):
@@ -646,7 +681,9 @@ class TactileGCN(PerceptionModel):
 
     :math:`\hat A` is precomputed (``normalize=False``) and expanded to a
     block-diagonal sparse matrix per batch size, so GCNConv runs one sparse
-    matmul per layer instead of re-normalising 653 * B nodes every call.
+    matmul per layer instead of re-normalising 653 * B nodes every call; as
+    :math:`\hat A` is symmetric, the backward pass reuses it instead of
+    transposing it (3x faster training at batch 32).
 
     Shapes:
         - **input:** ``readings (B, T)``, ``positions (B, T, 3)``
@@ -661,8 +698,7 @@ class TactileGCN(PerceptionModel):
         channels: tuple[int, ...] = (32, 32, 32),
     ) -> None:
         super().__init__()
-        from torch_geometric.nn import GCNConv
-        from torch_geometric.utils import add_self_loops, to_undirected
+        from torch_geometric.utils import add_self_loops, is_undirected, to_undirected
 
         rest = torch.as_tensor(rest_positions, dtype=torch.float32)
         if rest.dim() != 2 or rest.shape[1] != 3 or torch.isnan(rest).any():
@@ -673,11 +709,13 @@ class TactileGCN(PerceptionModel):
         ei, _ = add_self_loops(ei, num_nodes=T)
         deg = torch.bincount(ei[1], minlength=T).float()
         w = deg[ei[0]].rsqrt() * deg[ei[1]].rsqrt()
+        if not is_undirected(ei, w, num_nodes=T):  # the propagation relies on it
+            raise AssertionError("the GCN adjacency must be symmetric")
         self.register_buffer("edge_index", ei, persistent=False)
         self.register_buffer("edge_weight", w, persistent=False)
         sizes = [4, *channels]
         self.convs = nn.ModuleList(
-            GCNConv(sizes[i], sizes[i + 1], normalize=False) for i in range(len(channels))
+            _symmetric_gcn_conv(sizes[i], sizes[i + 1]) for i in range(len(channels))
         )
         self.head = _mlp([channels[-1], channels[-1], out_dim])
         self._adj_cache: tuple | None = None
