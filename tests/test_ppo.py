@@ -1,6 +1,7 @@
 """PPO wiring: the rsl_rl adapter, training runs, checkpoints, exact resume, evaluation, learning."""
 
 import copy
+import math
 import shutil
 from dataclasses import replace
 
@@ -11,7 +12,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
-from tacgnn.learning.evaluate import evaluate, wilson_interval
+from tacgnn.learning.evaluate import evaluate, seed_bootstrap_difference, wilson_interval
 from tacgnn.learning.ppo import (CheckpointError, PPOConfig, list_checkpoints, load_checkpoint, load_policy,
                                  make_runner, seed_everything, train)
 from tacgnn.learning.rsl_env import RslBaodingEnv
@@ -338,6 +339,24 @@ def test_wilson_interval():
     lo, hi = wilson_interval(45, 50)  # p = 0.9
     assert lo == pytest.approx(0.7864, abs=1e-3) and hi == pytest.approx(0.9565, abs=1e-3)
     assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+
+
+def test_seed_bootstrap_difference():
+    # one seed per side: the episode noise alone, close to the normal interval of a difference
+    diff, lo, hi = seed_bootstrap_difference([(461, 512)], [(410, 512)])
+    half = 1.96 * math.sqrt(0.9 * 0.1 / 512 + 0.8 * 0.2 / 512)
+    assert diff == pytest.approx(51 / 512)
+    assert lo == pytest.approx(diff - half, abs=0.006) and hi == pytest.approx(diff + half, abs=0.006)
+    # seeds that disagree: equal pooled rates, but a far wider interval than the episodes give
+    diff, lo, hi = seed_bootstrap_difference([(500, 512), (300, 512)], [(400, 512), (400, 512)])
+    assert diff == 0.0 and lo < -0.15 and hi > 0.15
+    # every seed of one side far above every seed of the other: the interval excludes 0
+    _, lo, _ = seed_bootstrap_difference([(460, 512), (450, 512), (470, 512)], [(300, 512), (320, 512)])
+    assert lo > 0.2
+    with pytest.raises(ValueError, match="successes <= episodes"):
+        seed_bootstrap_difference([(600, 512)], [(1, 512)])
+    with pytest.raises(ValueError, match="at least one seed"):
+        seed_bootstrap_difference([], [(1, 512)])
 
 
 # --- (f) PPO learns --------------------------------------------------------------------

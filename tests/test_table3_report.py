@@ -77,3 +77,17 @@ def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
     assert "| 90.0 [" in rows["CNN, trained in the loop (s1 @600)"]
     assert "| 99.0 [" in rows["true ball positions (the policy's own training input)"]
     assert rows["tacgnn_s1"].startswith("| tacgnn_s1 | cnn_s1 | 30.0 [")
+
+
+def test_tacgnn_minus_each_baseline_with_a_seed_bootstrap_interval(report, tmp_path):
+    for seed, rates in enumerate([(0.95, 0.9, 0.8), (0.93, 0.9, 0.6)]):
+        _write(tmp_path / f"blind_tacgnn_wu4_lr0.0001_hard_s{seed}_model_000600.json", rates, episodes=512)
+    _write(tmp_path / "blind_mlp_wu4_lr0.0001_hard_s0_model_000600.json", (0.5, 0.9, 0.7), episodes=512)
+    ours = report.collect(tmp_path, "blind_tacgnn_wu4_lr0.0001_hard", 600)
+    cells = report.difference_cells(ours, report.collect(tmp_path, "blind_mlp_wu4_lr0.0001_hard", 600))
+    diff, lo, hi = (float(x) for x in cells[0].replace("**", "").replace("[", "").replace("]", "").replace(",", "").split())
+    assert diff == 43.9 and 30 < lo < diff < hi < 50  # (486 + 476) / 1024 - 256 / 512: far ahead on Simple
+    assert cells[1].startswith("**+0.0**")  # level on Middle
+    _, lo, hi = (float(x) for x in cells[2].replace("**", "").replace("[", "").replace("]", "").replace(",", "").split())
+    assert lo < 0 < hi  # TacGNN's seeds straddle the MLP on Hard (80 % and 60 % against 70 %)
+    assert report.difference_cells(ours, {}) == ["not run"] * 3

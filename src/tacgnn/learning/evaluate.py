@@ -50,6 +50,36 @@ def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float,
     return (lo, hi)
 
 
+def seed_bootstrap_difference(
+    a: list[tuple[int, int]], b: list[tuple[int, int]], draws: int = 20_000, seed: int = 0
+) -> tuple[float, float, float]:
+    """Pooled success rate of `a` minus that of `b`, with a 95 % bootstrap interval.
+
+    `a` and `b` hold one (successes, episodes) pair per training seed. Each draw
+    resamples the seeds of each side with replacement, then the episodes of each drawn
+    seed (binomial at that seed's rate), so the interval carries the spread between
+    seeds as well as the episode noise; a pooled Wilson interval carries only the latter.
+    With two or three seeds per side the seed level is coarse: read the interval as a
+    lower bound on the uncertainty.
+    """
+    if not a or not b or any(n <= 0 or not 0 <= k <= n for k, n in (*a, *b)):
+        raise ValueError(f"need at least one seed per side with 0 <= successes <= episodes > 0, got {a} and {b}")
+    rng = np.random.default_rng(seed)
+
+    def pooled_draws(runs: list[tuple[int, int]]) -> np.ndarray:
+        k, n = np.array(runs, dtype=float).T
+        pick = rng.integers(0, len(runs), size=(draws, len(runs)))
+        wins = rng.binomial(n[pick].astype(np.int64), k[pick] / n[pick])
+        return wins.sum(1) / n[pick].sum(1)
+
+    def pooled(runs: list[tuple[int, int]]) -> float:
+        return sum(k for k, _ in runs) / sum(n for _, n in runs)
+
+    diff = pooled_draws(a) - pooled_draws(b)
+    lo, hi = np.quantile(diff, [0.025, 0.975])
+    return pooled(a) - pooled(b), float(lo), float(hi)
+
+
 def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
     """The frozen perception in `path`: a `train-perception` checkpoint for the Baoding balls,
     or the perception a 'perceived' policy checkpoint was trained with."""
