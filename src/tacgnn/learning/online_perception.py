@@ -153,7 +153,8 @@ class OnlinePerception:
     def _rmse(self, n: int) -> float:
         self.model.eval()
         idx = torch.randperm(n, generator=torch.Generator().manual_seed(0))[:4096]
-        pred = self.model(*self._inputs(idx))
+        # in chunks of the rollout's batch size: a GCN builds (and caches) one adjacency per size
+        pred = torch.cat([self.model(*self._inputs(chunk)) for chunk in idx.split(256)])
         return self.objective.metrics(pred, self.labels[idx])["position_rmse_cm"]
 
     def state_dict(self) -> dict:

@@ -718,15 +718,16 @@ class TactileGCN(PerceptionModel):
             _symmetric_gcn_conv(sizes[i], sizes[i + 1]) for i in range(len(channels))
         )
         self.head = _mlp([channels[-1], channels[-1], out_dim])
-        self._adj_cache: tuple | None = None
+        # batch size -> adjacency; a few sizes alternate in use (rollout, training, evaluation)
+        self._adj_cache: dict[tuple, Tensor] = {}
 
     def reset_parameters(self) -> None:
         _reset_all(self)
 
     def _batched_adjacency(self, B: int) -> Tensor:
-        """Block-diagonal sparse :math:`\\hat A` for B frames (cached per batch size)."""
+        """Block-diagonal sparse :math:`\\hat A` for B frames (cached for the last 3 batch sizes)."""
         key = (B, self.edge_index.device)
-        if self._adj_cache is None or self._adj_cache[0] != key:
+        if key not in self._adj_cache:
             T, E = self.num_taxels, self.edge_index.shape[1]
             off = (torch.arange(B, device=self.edge_index.device) * T).view(1, B, 1)
             ei = (self.edge_index.view(2, 1, E) + off).reshape(2, B * E)
@@ -736,8 +737,10 @@ class TactileGCN(PerceptionModel):
             ).coalesce()
             with warnings.catch_warnings():  # "sparse CSR support is in beta": fine here
                 warnings.simplefilter("ignore", UserWarning)
-                self._adj_cache = (key, adj.to_sparse_csr())
-        return self._adj_cache[1]
+                if len(self._adj_cache) == 3:
+                    self._adj_cache.pop(next(iter(self._adj_cache)))  # the oldest
+                self._adj_cache[key] = adj.to_sparse_csr()
+        return self._adj_cache[key]
 
     def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
         self._check(readings, positions, joints)
