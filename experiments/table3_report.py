@@ -3,7 +3,8 @@
     .venv/bin/python experiments/table3_report.py [--iterations 800] [--out docs/table3.md]
 
 Reads results/blind_<model>_hard_s<seed>_model_<iterations>.json (and the ground-truth
-teacher's results/gt_hard_s<seed>_model_002000.json), pools the episodes of all seeds of a
+teacher's results/gt_hard_s<seed>_model_002000.json; with `--condition C`, the files
+results/C_blind_... and results/C_gt_hard_... of evaluations under a changed env), pools the episodes of all seeds of a
 row into one success rate with a Wilson 95 % interval, and lists the seeds' own rates
 beside it, so the spread over seeds and the uncertainty from the episodes both show.
 """
@@ -94,9 +95,16 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=800, help="PPO iterations of the blind runs to report")
     ap.add_argument("--results", default=str(ROOT / "results"))
     ap.add_argument("--out", default=str(ROOT / "docs" / "table3.md"))
+    ap.add_argument("--condition", default="", help="report the evaluations under a changed env instead, "
+                    "e.g. otherhand_x1 (results/otherhand_x1_blind_..., written by experiments/other_hand.sh)")
     args = ap.parse_args()
     results = Path(args.results)
-    lines = ["# Table III: blind Baoding, success rate by perception model", "",
+    pre = f"{args.condition}_" if args.condition else ""
+    title = "# Table III: blind Baoding, success rate by perception model"
+    if args.condition:
+        title += (f", evaluated under the change `{args.condition}` (for `otherhand_xK`: "
+                  f"`experiments/other_hand.sh {args.iterations} K`, 256 episodes per task)")
+    lines = [title, "",
              f"Made by `experiments/table3.sh MODEL SEED {args.iterations}` per row and seed (for a "
              f"checkpoint inside a longer run: `tacgnn evaluate RUN/model_{args.iterations:06d}.pt --task all "
              "--episodes 512 --envs 128 --out results/RUN_model_NNNNNN.json`), then "
@@ -108,15 +116,15 @@ def main() -> None:
              "(each seed's rate), mean steps to success. The paper's figures follow in the same row.", "",
              "| perception | Simple | Middle | Hard | paper Simple / Middle / Hard | paper steps |",
              "|---|---|---|---|---|---|"]
-    teacher = collect(results, "gt_hard", 2000)
+    teacher = collect(results, f"{pre}gt_hard", 2000)
     lines.append("| ground truth (teacher, Hard fine-tune) | " + " | ".join(pooled_cells(teacher)) + " | - | - |")
     for key, label, paper_key in ROWS:
-        per_seed = collect(results, f"blind_{key}_hard", args.iterations)
+        per_seed = collect(results, f"{pre}blind_{key}_hard", args.iterations)
         paper = PAPER.get(paper_key)
         paper_cells = (" / ".join(map(str, paper[0])), " / ".join(map(str, paper[1]))) if paper else ("-", "-")
         lines.append(f"| {label} | " + " | ".join(pooled_cells(per_seed)) + f" | {paper_cells[0]} | {paper_cells[1]} |")
     ours_key, baselines = COMPARE
-    ours = collect(results, f"blind_{ours_key}_hard", args.iterations)
+    ours = collect(results, f"{pre}blind_{ours_key}_hard", args.iterations)
     lines += ["", "## TacGNN-32 minus each baseline (learning rate 1e-4, warm-up rows)", "",
               "Success points, TacGNN-32's pooled rate minus the baseline's, with a 95 % interval from "
               "a bootstrap that resamples the seeds of each model and then each seed's episodes "
@@ -125,7 +133,7 @@ def main() -> None:
               "two or three seeds per model it understates the spread between seeds.", "",
               "| TacGNN-32 minus | seeds (TacGNN / baseline) | Simple | Middle | Hard |", "|---|---|---|---|---|"]
     for key, label in baselines:
-        other = collect(results, f"blind_{key}_hard", args.iterations)
+        other = collect(results, f"{pre}blind_{key}_hard", args.iterations)
         lines.append(f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |")
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)

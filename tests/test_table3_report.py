@@ -91,3 +91,20 @@ def test_tacgnn_minus_each_baseline_with_a_seed_bootstrap_interval(report, tmp_p
     _, lo, hi = (float(x) for x in cells[2].replace("**", "").replace("[", "").replace("]", "").replace(",", "").split())
     assert lo < 0 < hi  # TacGNN's seeds straddle the MLP on Hard (80 % and 60 % against 70 %)
     assert report.difference_cells(ours, {}) == ["not run"] * 3
+
+
+def test_a_condition_reads_only_its_own_evaluations(report, tmp_path):
+    """--condition otherhand_x1 reports results/otherhand_x1_blind_..., not the nominal files."""
+    import sys
+    _write(tmp_path / "blind_mlp_wu4_lr0.0001_hard_s0_model_000600.json", (0.9, 0.9, 0.9))
+    _write(tmp_path / "otherhand_x1_blind_mlp_wu4_lr0.0001_hard_s0_model_000600.json", (0.4, 0.3, 0.2))
+    out = tmp_path / "t3.md"
+    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(tmp_path), "--out", str(out),
+                                "--iterations", "600", "--condition", "otherhand_x1"]
+    try:
+        report.main()
+    finally:
+        sys.argv = argv
+    row = next(line for line in out.read_text().splitlines() if line.startswith("| MLP, warm-up"))
+    assert "**40.0**" in row and "**90.0**" not in row
+    assert "otherhand_x1" in out.read_text().splitlines()[0]

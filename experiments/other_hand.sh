@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The blind policies of Table III on a hand they were not trained on: does the perception
+# carry over? Each checkpoint experiments/table3.sh evaluated (learning rate 1e-4, warm-up
+# rows) runs again with the "other hand" of experiments/domain_randomisation.sh applied K
+# times (K=1: stiffness x0.7, damping x1.5, 0.25 kg balls instead of 0.15, ball and finger
+# friction x0.7), 256 episodes per task. The heavier balls press the skin harder and the
+# softer fingers sit elsewhere, so the skin's readings and the taxels' positions move away
+# from everything the perception was trained on; the ground-truth teacher shows what the
+# control alone loses.
+#
+#   experiments/other_hand.sh [ITERATIONS] [K]      (defaults 600 and 1)
+#
+# -> results/otherhand_x$K_<run>_model_NNNNNN.json; the table:
+#    .venv/bin/python experiments/table3_report.py --iterations 600 --condition otherhand_x1
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ITERS=${1:-600}
+K=${2:-1}
+T=.venv/bin/tacgnn
+source experiments/lib.sh  # last
+SET=$(awk -v k=$K 'BEGIN { printf "hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }')
+runs=(runs/gt_hard_s0:2000)
+for model in tacgnn cnn mlp gcn; do
+  for run in runs/blind_${model}_wu4_lr0.0001_hard_s*; do
+    [ -f "$(last $run $ITERS)" ] && runs+=("$run:$ITERS")
+  done
+done
+for entry in "${runs[@]}"; do
+  run=${entry%:*}; n=${entry#*:}
+  out=results/otherhand_x${K}_$(basename $run)_model_$(printf %06d $n).json
+  [ -f $out ] || $T evaluate "$(last $run $n)" --task all --episodes 256 --envs 128 --out $out --set $SET
+done
