@@ -6,12 +6,16 @@
 # friction x0.7), 256 episodes per task. The heavier balls press the skin harder and the
 # softer fingers sit elsewhere, so the skin's readings and the taxels' positions move away
 # from everything the perception was trained on; the ground-truth teacher shows what the
-# control alone loses.
+# control alone loses. Then the teacher runs blind through each perception trained offline
+# on its rollouts (as experiments/perception_swap.sh offline), on the same changed hand:
+# the perceptions compared with the policy held fixed.
 #
 #   experiments/other_hand.sh [ITERATIONS] [K]      (defaults 600 and 1)
 #
-# -> results/otherhand_x$K_<run>_model_NNNNNN.json; the table:
+# -> results/otherhand_x$K_<run>_model_NNNNNN.json and results/otherhand_x$K_swap_gt__<perception>.json;
+#    the tables:
 #    .venv/bin/python experiments/table3_report.py --iterations 600 --condition otherhand_x1
+#    .venv/bin/python experiments/perception_swap_report.py --condition otherhand_x1
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ITERS=${1:-600}
@@ -19,6 +23,7 @@ K=${2:-1}
 T=.venv/bin/tacgnn
 source experiments/lib.sh  # last
 SET=$(awk -v k=$K 'BEGIN { printf "hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }')
+GT=runs/gt_hard_s0/model_002000.pt
 runs=(runs/gt_hard_s0:2000)
 for model in tacgnn cnn mlp gcn; do
   for run in runs/blind_${model}_wu4_lr0.0001_hard_s*; do
@@ -30,3 +35,9 @@ for entry in "${runs[@]}"; do
   out=results/otherhand_x${K}_$(basename $run)_model_$(printf %06d $n).json
   [ -f $out ] || $T evaluate "$(last $run $n)" --task all --episodes 256 --envs 128 --out $out --set $SET
 done
+for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,mlp}_pi; do
+  out=results/otherhand_x${K}_swap_gt__$(basename $p).json
+  [ -f $p/checkpoint.pt ] && [ ! -f $out ] && $T evaluate $GT --perception $p/checkpoint.pt --task all \
+    --episodes 256 --envs 128 --out $out --set $SET
+done
+true

@@ -1,6 +1,6 @@
 """The perception-swap table from the evaluations experiments/perception_swap.sh wrote.
 
-    .venv/bin/python experiments/perception_swap_report.py [--out docs/perception_swap.md]
+    .venv/bin/python experiments/perception_swap_report.py [--out docs/perception_swap.md] [--condition otherhand_x1]
 
 One policy, many perceptions: success % on Simple / Middle / Hard (512 episodes each,
 Wilson 95 % intervals), seeds of one perception model pooled in one row with the seeds'
@@ -38,15 +38,17 @@ def cells(records_by_seed: dict[str, list[dict]]) -> list[str]:
     return out
 
 
-def table(results: Path) -> str:
+def table(results: Path, condition: str = "") -> str:
+    """The tables; with `condition` (e.g. otherhand_x1), those of the evaluations under that env change."""
+    pre = f"{condition}_" if condition else ""
     rows = []
-    teacher = results / "gt_hard_s0_model_002000.json"
+    teacher = results / f"{pre}gt_hard_s0_model_002000.json"
     if teacher.is_file():
         rows.append(("true ball positions (the policy's own training input)", {"-": json.loads(teacher.read_text())}))
     for kind, pattern in (("offline", OFFLINE), ("in the loop", IN_LOOP)):
         groups: dict[str, dict[str, list[dict]]] = {}
-        for path in sorted(results.glob("swap_gt__*.json")):
-            if m := pattern.fullmatch(path.name):
+        for path in sorted(results.glob(f"{pre}swap_gt__*.json")):
+            if m := pattern.fullmatch(path.name.removeprefix(pre)):
                 model, seed = (m.group(2), m.group(1)) if kind == "offline" else (m.group(1), m.group(2))
                 label = f"s{seed}" if kind == "offline" else f"s{seed} @{int(m.group(3))}"
                 groups.setdefault(model, {})[label] = json.loads(path.read_text())
@@ -56,11 +58,11 @@ def table(results: Path) -> str:
                 rows.append((f"{LABEL[model]}, trained {kind} ({seeds})", groups[model]))
     lines = ["| ball positions from | Simple | Middle | Hard |", "| --- | --- | --- | --- |"]
     lines += [f"| {name} | " + " | ".join(cells(recs)) + " |" for name, recs in rows]
-    cross = sorted(results.glob("swap_*_policy__*_perception.json"))
+    cross = sorted(results.glob(f"{pre}swap_*_policy__*_perception.json"))
     if cross:
         lines += ["", "| policy trained with | perception from | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
         for path in cross:
-            policy, perception = path.stem.removeprefix("swap_").split("__")
+            policy, perception = path.stem.removeprefix(f"{pre}swap_").split("__")
             lines.append(f"| {policy.removesuffix('_policy')} | {perception.removesuffix('_perception')} | "
                          + " | ".join(cells({"-": json.loads(path.read_text())})) + " |")
     return "\n".join(lines) + "\n"
@@ -70,8 +72,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--results", type=Path, default=ROOT / "results")
     parser.add_argument("--out", type=Path, help="also write the table here")
+    parser.add_argument("--condition", default="", help="the evaluations under an env change, e.g. otherhand_x1 "
+                        "(results/otherhand_x1_swap_..., written by experiments/other_hand.sh)")
     args = parser.parse_args()
-    text = table(args.results)
+    text = table(args.results, args.condition)
     print(text)
     if args.out:
         args.out.write_text(text)

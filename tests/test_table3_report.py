@@ -77,6 +77,13 @@ def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
     assert "| 90.0 [" in rows["CNN, trained in the loop (s1 @600)"]
     assert "| 99.0 [" in rows["true ball positions (the policy's own training input)"]
     assert rows["tacgnn_s1"].startswith("| tacgnn_s1 | cnn_s1 | 30.0 [")
+    # under an env change: only that change's files, the nominal ones left out
+    _write(tmp_path / "otherhand_x1_gt_hard_s0_model_002000.json", (0.88, 0.9, 0.8))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s0_tacgnn_pi.json", (0.4, 0.3, 0.2))
+    rows = {line.split(" | ")[0].strip("| "): line for line in swap.table(tmp_path, "otherhand_x1").splitlines()}
+    assert "| 40.0 [" in rows["TacGNN-32, trained offline (s0)"] and "| 88.0 [" in rows[
+        "true ball positions (the policy's own training input)"]
+    assert not any(name.startswith(("CNN", "tacgnn_s1")) for name in rows)
 
 
 def test_tacgnn_minus_each_baseline_with_a_seed_bootstrap_interval(report, tmp_path):
