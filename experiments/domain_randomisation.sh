@@ -15,19 +15,15 @@ cd "$(dirname "$0")/.."
 ITERS=${1:-2000}
 SEED=${2:-0}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last
+source experiments/lib.sh  # resume, last, other_hand
 RUN=runs/dr_on_s$SEED
 [ -f "$(last $RUN $ITERS)" ] || $T train-policy --run-dir $RUN $(resume $RUN) \
   --env tactile=false randomization.enabled=true --ppo max_iterations=$ITERS save_interval=100 seed=$SEED
 NOMINAL="randomization.enabled=false"
-other_hand() {  # other_hand K: the perturbation applied K times (K=1: stiffness x0.7, damping x1.5,
-                # 0.25 kg balls, friction x0.7; the randomisation draws at most x0.8 / x1.2 / 0.2 kg / x0.8)
-  awk -v k=$1 'BEGIN { printf "randomization.enabled=false hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }'
-}
 evaluate() {  # evaluate TAG CHECKPOINT
   for hand in nominal other_hand_x1 other_hand_x2 other_hand_x3; do
     out=results/$1_$(basename $2 .pt)_$hand.json
-    set_=$NOMINAL; [ $hand != nominal ] && set_=$(other_hand ${hand#other_hand_x})
+    set_=$NOMINAL; [ $hand != nominal ] && set_="$NOMINAL $(other_hand ${hand#other_hand_x})"
     [ -f $out ] || $T evaluate $2 --task simple --episodes 256 --envs 128 --out $out --set $set_
   done
 }

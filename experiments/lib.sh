@@ -5,3 +5,9 @@
 resume() { compgen -G "$1/model_*.pt" >/dev/null && echo --resume || true; }
 # last RUN_DIR ITERATIONS: the checkpoint written after that many iterations
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
+# other_hand K: the env changes of the "other hand" (a stand-in for a real hand), applied K times:
+# K=1 is finger stiffness x0.7, damping x1.5, 0.25 kg balls instead of 0.15, ball and finger
+# friction x0.7 (domain randomisation draws at most x0.8 / x1.2 / 0.2 kg / x0.8)
+other_hand() {
+  awk -v k=$1 'BEGIN { printf "hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }'
+}

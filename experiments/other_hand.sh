@@ -21,8 +21,8 @@ cd "$(dirname "$0")/.."
 ITERS=${1:-600}
 K=${2:-1}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # last
-SET=$(awk -v k=$K 'BEGIN { printf "hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }')
+source experiments/lib.sh  # last, other_hand
+SET=$(other_hand $K)
 GT=runs/gt_hard_s0/model_002000.pt
 runs=(runs/gt_hard_s0:2000)
 for model in tacgnn cnn mlp gcn; do
@@ -37,7 +37,7 @@ for entry in "${runs[@]}"; do
 done
 for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,mlp}_pi; do
   out=results/otherhand_x${K}_swap_gt__$(basename $p).json
-  [ -f $p/checkpoint.pt ] && [ ! -f $out ] && $T evaluate $GT --perception $p/checkpoint.pt --task all \
-    --episodes 256 --envs 128 --out $out --set $SET
+  if [ -f $p/checkpoint.pt ] && [ ! -f $out ]; then
+    $T evaluate $GT --perception $p/checkpoint.pt --task all --episodes 256 --envs 128 --out $out --set $SET
+  fi
 done
-true

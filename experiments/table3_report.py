@@ -47,16 +47,26 @@ def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[d
     return found
 
 
+def task_records(per_seed: dict[int, list[dict]], task: str) -> list[dict]:
+    """Every seed's record of one task."""
+    return [r for recs in per_seed.values() for r in recs if r["task"] == task]
+
+
+def successes(record: dict) -> int:
+    """Episodes won: the records store the rate."""
+    return round(record["success_rate"] * record["episodes"])
+
+
 def pooled_cells(per_seed: dict[int, list[dict]]) -> list[str]:
     """One markdown cell per task: pooled rate [Wilson CI] (seed rates), mean steps."""
     cells = []
     for task in TASKS:
-        records = [r for recs in per_seed.values() for r in recs if r["task"] == task]
+        records = task_records(per_seed, task)
         if not records:
             cells.append("not run")
             continue
         n = sum(r["episodes"] for r in records)
-        won = [round(r["success_rate"] * r["episodes"]) for r in records]
+        won = [successes(r) for r in records]
         wins = sum(won)
         lo, hi = wilson_interval(wins, n)
         # a run without a success has NaN mean steps: it adds nothing
@@ -71,8 +81,7 @@ def difference_cells(ours: dict[int, list[dict]], other: dict[int, list[dict]]) 
     """One cell per task: pooled success points of `ours` minus `other` [seed-and-episode
     bootstrap 95 % interval]."""
     def runs(per_seed, task):
-        return [(round(r["success_rate"] * r["episodes"]), r["episodes"])
-                for recs in per_seed.values() for r in recs if r["task"] == task]
+        return [(successes(r), r["episodes"]) for r in task_records(per_seed, task)]
 
     cells = []
     for task in TASKS:
