@@ -221,6 +221,23 @@ def test_gcn_matches_pyg_gcnconv_with_normalisation(rest):
         torch.testing.assert_close(got, p.grad, atol=1e-4, rtol=1e-4)
 
 
+def test_cnn_matches_relu_before_pool(rest):
+    """Max-pooling before the ReLU on channels-last images computes the CNN of the old layer
+    order (conv, ReLU, pool), so checkpoints written before the change mean the same."""
+    import torch.nn.functional as F
+
+    torch.manual_seed(0)
+    model = make("cnn", rest)
+    readings, positions, _ = blob_frames(rest, 4, seed=3)
+    img = torch.zeros(4, 36 * 36)
+    img[:, model.pixel] = readings
+    conv1, conv2 = model.features[0], model.features[3]
+    x = F.max_pool2d(torch.relu(F.conv2d(img.view(4, 1, 36, 36), conv1.weight.contiguous(), conv1.bias)), 2)
+    x = F.max_pool2d(torch.relu(F.conv2d(x, conv2.weight.contiguous(), conv2.bias)), 2)
+    with torch.no_grad():
+        torch.testing.assert_close(model(readings, positions), model.head(x.flatten(1)))
+
+
 def test_cnn_layout_packing(rest):
     layout = torch.stack([torch.arange(T) % 36, torch.arange(T) // 36], 1)  # column-major
     model = TactileCNN(layout=layout)

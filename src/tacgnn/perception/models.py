@@ -642,9 +642,8 @@ class _SymmetricSparseMM(torch.autograd.Function):
     """``adj @ x`` for a symmetric sparse ``adj``, whose gradient is ``adj @ grad``.
 
     ``torch.sparse.mm``'s own backward transposes the CSR matrix, which sorts its
-    B x 5,000 entries on every training step (62 % of a GCN training step at batch
-    32 went into that conversion). A symmetric matrix is its own transpose, so the
-    sort is not needed.
+    B x 5,000 entries on every training step (most of a GCN training step at batch
+    32). A symmetric matrix is its own transpose, so the sort is not needed.
     """
 
     @staticmethod
