@@ -1,6 +1,6 @@
 """Learning curves of PPO runs (the paper's Fig. 4B/4C): training success rate against env steps.
 
-    .venv/bin/python experiments/policy_curves.py OUT.png LABEL=RUN_DIR [LABEL=RUN_DIR ...]
+    .venv/bin/python experiments/policy_curves.py OUT.png LABEL=RUN_DIR[,RUN_DIR...] [...]
         [--title T] [--smooth 25]
 
 Reads each run's TensorBoard scalars (`Episode/success_rate`, logged by rsl_rl every
@@ -8,6 +8,9 @@ iteration from the episodes that ended in it) and the run's config for the env s
 iteration (num_envs x num_steps_per_env). Several event files in one run (a resumed run)
 are merged, later files winning. Also prints, per run, the env steps and wall-clock time
 at which the smoothed success rate first reached 50 % and 90 %, and its final value.
+Several runs in one item (seeds, comma-separated) draw their mean over the iterations all of
+them logged, with a band from the lowest to the highest seed (each smoothed); the columns
+then read the mean curve, and the wall clock is the slowest seed's.
 """
 
 from __future__ import annotations
@@ -47,6 +50,18 @@ def steps_per_iteration(run_dir: Path) -> int:
     return int(cfg["ppo"]["num_envs"]) * int(cfg["ppo"]["num_steps_per_env"])
 
 
+def common_iterations(curves: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """(iterations, success rates [runs, iterations], slowest wall clock) on the iterations every run logged."""
+    common = curves[0][0]
+    for it, _, _ in curves[1:]:
+        common = np.intersect1d(common, it)
+    if len(common) == 0:
+        raise ValueError("the runs share no logged iteration")
+    values = np.stack([v[np.searchsorted(it, common)] for it, v, _ in curves])
+    wall = np.stack([w[np.searchsorted(it, common)] for it, _, w in curves]).max(axis=0)
+    return common, values, wall
+
+
 def smooth(values: np.ndarray, window: int) -> np.ndarray:
     if window <= 1 or len(values) < window:
         return values
@@ -71,14 +86,21 @@ def main() -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4))
     print(f"{'run':22s} {'iters':>6s} {'50% at (M steps, min)':>22s} {'90% at (M steps, min)':>22s} {'final':>6s}")
     for item in args.runs:
-        label, _, path = item.partition("=")
-        if not path:
-            raise SystemExit(f"expected LABEL=RUN_DIR, got {item!r}")
-        run = Path(path)
-        it, value, wall = success_curve(run)
-        env_steps = it * steps_per_iteration(run) / 1e6
-        s = smooth(value, args.smooth)
-        ax.plot(env_steps, 100 * s, label=label)
+        label, _, paths = item.partition("=")
+        if not paths:
+            raise SystemExit(f"expected LABEL=RUN_DIR[,RUN_DIR...], got {item!r}")
+        runs = [Path(p) for p in paths.split(",")]
+        per_iteration = {steps_per_iteration(run) for run in runs}
+        if len(per_iteration) > 1:
+            raise SystemExit(f"{label}: the runs differ in env steps per iteration {sorted(per_iteration)}")
+        it, values, wall = common_iterations([success_curve(run) for run in runs])
+        env_steps = it * per_iteration.pop() / 1e6
+        each = np.stack([smooth(v, args.smooth) for v in values])
+        s = each.mean(axis=0)
+        line, = ax.plot(env_steps, 100 * s, label=label + (f" ({len(runs)} seeds)" if len(runs) > 1 else ""))
+        if len(runs) > 1:
+            ax.fill_between(env_steps, 100 * each.min(axis=0), 100 * each.max(axis=0),
+                            color=line.get_color(), alpha=0.15, linewidth=0)
         cells = []
         for level in (0.5, 0.9):
             hit = np.flatnonzero(s >= level)

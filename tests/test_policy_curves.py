@@ -1,0 +1,41 @@
+"""experiments/policy_curves.py: learning curves read from TensorBoard, seeds averaged on shared iterations."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "policy_curves.py"
+
+
+@pytest.fixture(scope="module")
+def curves():
+    spec = importlib.util.spec_from_file_location("policy_curves", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_resumed_run_merges_its_event_files(curves, tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    for first, last, value in ((0, 6, 0.1), (4, 10, 0.5)):  # resumed at iteration 4: the later file wins
+        writer = SummaryWriter(str(tmp_path))
+        for step in range(first, last):
+            writer.add_scalar("Episode/success_rate", value, step)
+        writer.close()
+    it, values, _ = curves.success_curve(tmp_path)
+    assert it.tolist() == list(range(10))
+    assert np.allclose(values, [0.1] * 4 + [0.5] * 6)
+
+
+def test_seeds_average_over_the_iterations_all_of_them_logged(curves):
+    a = (np.arange(0, 10), np.full(10, 0.2), np.arange(10.0))
+    b = (np.arange(2, 6), np.full(4, 0.6), 2 * np.arange(4.0))  # a shorter seed, starting later
+    it, values, wall = curves.common_iterations([a, b])
+    assert it.tolist() == [2, 3, 4, 5]
+    assert np.allclose(values.mean(axis=0), 0.4) and values.shape == (2, 4)
+    assert wall.tolist() == [2.0, 3.0, 4.0, 6.0]  # the slower seed at each iteration
+    with pytest.raises(ValueError, match="share no logged iteration"):
+        curves.common_iterations([a, (np.arange(20, 22), np.zeros(2), np.zeros(2))])
