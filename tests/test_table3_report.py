@@ -68,6 +68,7 @@ def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
     _write(tmp_path / "swap_gt__gthard_s1_tacgnn_pi.json", (0.6, 0.5, 0.4))
     _write(tmp_path / "swap_gt__gthard_s0_cnn_pi.json", (0.5, 0.5, 0.5))
     _write(tmp_path / "swap_gt__gthard_s2_tacgnnraw_pi.json", (0.2, 0.2, 0.2))  # experiments/force_input.sh
+    _write(tmp_path / "swap_gt__gthard_s1_mlplog_pi.json", (0.1, 0.1, 0.1))
     _write(tmp_path / "swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json", (0.9, 0.9, 0.9))
     _write(tmp_path / "swap_tacgnn_s1_policy__cnn_s1_perception.json", (0.3, 0.2, 0.1))
     text = swap.table(tmp_path)
@@ -76,6 +77,7 @@ def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
     assert f"70.0 [{100 * lo:.1f}-{100 * hi:.1f}] (80.0 / 60.0)" in rows["TacGNN-32, trained offline (s0, s1)"]
     assert "| 50.0 [" in rows["CNN, trained offline (s0)"]
     assert "| 20.0 [" in rows["TacGNN-32 with raw force, trained offline (s2)"]  # its own row, not pooled with TacGNN
+    assert "| 10.0 [" in rows["MLP with log force, trained offline (s1)"]
     assert "| 90.0 [" in rows["CNN, trained in the loop (s1 @600)"]
     assert "| 99.0 [" in rows["true ball positions (the policy's own training input)"]
     assert rows["tacgnn_s1"].startswith("| tacgnn_s1 | cnn_s1 | 30.0 [")

@@ -1,6 +1,7 @@
 """Perception models: shapes, invariances, blind-area frames, input checks, config, learning."""
 
 import dataclasses
+import math
 
 import pytest
 import torch
@@ -15,6 +16,7 @@ from tacgnn.perception.models import (
     TactileCNN,
     TactileGCN,
     build_model,
+    reading_input,
 )
 
 T = 653
@@ -395,8 +397,35 @@ def test_log_force_feature_changes_the_input(rest):
     assert torch.isfinite(b).all() and not torch.allclose(a, b)
 
 
+@pytest.mark.parametrize("name", ["mlp", "cnn", "gcn"])
+def test_log1p_reading_feature_is_the_same_network_on_log1p_readings(name, rest):
+    """reading_feature=log1p feeds log(1 + f / 0.01 N) to the unchanged network: a force scaled by a
+    constant moves the input of the taxels a contact presses hard by nearly the same shift."""
+    torch.manual_seed(0)
+    raw = make(name, rest)
+    log = make(name, rest, reading_feature="log1p")
+    log.load_state_dict(raw.state_dict())
+    readings, positions, _ = blob_frames(rest, 3, seed=8)
+    with torch.no_grad():
+        expected = raw(torch.log1p(readings / 0.01), positions)
+        assert torch.allclose(log(readings, positions), expected, atol=1e-5)
+        assert not torch.allclose(raw(readings, positions), expected)
+    strong = readings[readings > 0.2]
+    assert strong.numel() > 10
+    shift = reading_input(1.7 * strong, "log1p") - reading_input(strong, "log1p")
+    assert torch.allclose(shift, torch.full_like(shift, math.log(1.7)), atol=0.04)
+    assert reading_input(torch.zeros(4), "log1p").eq(0).all()  # nothing pressed reads 0, as in raw
+
+
+def test_reading_feature_is_not_tacgnns_input():
+    with pytest.raises(ValueError, match="force_feature"):
+        PerceptionModelConfig(name="tacgnn", reading_feature="log1p")
+    assert PerceptionModelConfig(name="mlp", reading_feature="log1p").reading_feature == "log1p"
+
+
 @pytest.mark.parametrize("field,value", [("pool", "mean"), ("force_feature", "sqrt"), ("message_layers", 1),
-                                         ("head_hidden", -1), ("pos_scale", 0.0), ("residual", "yes")])
+                                         ("head_hidden", -1), ("pos_scale", 0.0), ("residual", "yes"),
+                                         ("reading_feature", "log")])
 def test_new_config_fields_are_validated(field, value):
     with pytest.raises(ValueError, match=field):
         PerceptionModelConfig(**{field: value})

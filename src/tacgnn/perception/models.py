@@ -48,12 +48,18 @@ __all__ = [
     "TactileCNN",
     "TactileGCN",
     "build_model",
+    "reading_input",
     "keep_freed_memory",
 ]
 
 MODEL_NAMES = ("tacgnn", "mlp", "cnn", "gcn")
 #: TacGNN force node feature (with ``use_force``): the reading in N, or ``log(f / 1 N)``.
 FORCE_FEATURES = ("raw", "log")
+#: MLP, CNN and GCN force input: the reading in N ("raw", the paper), or ``log(1 + f / 0.01 N)``
+#: ("log1p": 0 where nothing presses, and a force scaled by a constant becomes nearly a shift,
+#: as TacGNN's log force does; experiments/force_input.sh).
+READING_FEATURES = ("raw", "log1p")
+READING_LOG_SCALE = 0.01  # N: log1p's knee; readings well above it are compressed like a log
 #: TacGNN readout input: global max pool of the last layer ("last", the paper), or of every
 #: layer: concatenated ("all", L x C wide), concatenated and mapped to C by a linear layer
 #: without bias ("jk", jumping knowledge; the head's input stays C wide) or summed ("sum").
@@ -98,6 +104,7 @@ class PerceptionModelConfig:
     residual: bool = False  # h^l = conv(h^{l-1}) + h^{l-1} where the widths match
     pool: str = "last"  # global max pool of the last layer (the paper) or of every layer: see POOLS
     joint_inputs: int = 0  # TacGNN and MLP: hand joint angles given beside the skin (0 = skin only, the paper)
+    reading_feature: str = "raw"  # MLP, CNN and GCN: force input, see READING_FEATURES
     # MLP
     mlp_hidden: tuple[int, ...] = (64, 64)
     # CNN
@@ -142,6 +149,10 @@ class PerceptionModelConfig:
             raise ValueError(f"downsample_layers has duplicates: {self.downsample_layers}")
         if self.force_feature not in FORCE_FEATURES:
             raise ValueError(f"force_feature must be one of {FORCE_FEATURES}, got {self.force_feature!r}")
+        if self.reading_feature not in READING_FEATURES:
+            raise ValueError(f"reading_feature must be one of {READING_FEATURES}, got {self.reading_feature!r}")
+        if self.reading_feature != "raw" and self.name == "tacgnn":
+            raise ValueError("reading_feature is the mlp, cnn and gcn input; TacGNN's force input is force_feature")
         if self.pool not in POOLS:
             raise ValueError(f"pool must be one of {POOLS}, got {self.pool!r}")
         if isinstance(self.pos_scale, bool) or not isinstance(self.pos_scale, (int, float)) or not self.pos_scale > 0:
@@ -188,6 +199,13 @@ class PerceptionModel(nn.Module):
                 raise ValueError("joints contain NaN or inf")
         elif joints is not None:
             raise ValueError("this model was built without joint inputs (joint_inputs=0) but was given joints")
+
+
+def reading_input(readings: Tensor, kind: str) -> Tensor:
+    """The dense models' force input from the readings (N): see :data:`READING_FEATURES`."""
+    if kind == "raw":
+        return readings
+    return torch.log1p(readings.clamp_min(0.0) / READING_LOG_SCALE)
 
 
 def _mlp(sizes: list[int]) -> nn.Sequential:
@@ -558,7 +576,8 @@ class TacGNN(PerceptionModel):
 # baselines
 # --------------------------------------------------------------------------
 class TactileMLP(PerceptionModel):
-    r"""MLP baseline on the raw readings: :math:`y = \mathrm{MLP}(f)`, sizes ``[T, 64, 64, out]``.
+    r"""MLP baseline on the readings: :math:`y = \mathrm{MLP}(g(f))`, sizes ``[T, 64, 64, out]``
+    (:math:`g` = ``reading_feature``: the raw reading, the paper's, or :func:`reading_input`'s log1p).
 
     Shapes:
         - **input:** ``readings (B, T)``, ``positions (B, T, 3)`` (unused)
@@ -566,9 +585,10 @@ class TactileMLP(PerceptionModel):
     """
 
     def __init__(self, out_dim: int = 6, num_taxels: int = 653, hidden: tuple[int, ...] = (64, 64),
-                 joint_inputs: int = 0) -> None:
+                 joint_inputs: int = 0, reading_feature: str = "raw") -> None:
         super().__init__()
         self.num_taxels, self.out_dim, self.joint_inputs = num_taxels, out_dim, joint_inputs
+        self.reading_feature = reading_feature
         self.mlp = _mlp([num_taxels + joint_inputs, *hidden, out_dim])
 
     def reset_parameters(self) -> None:
@@ -576,7 +596,8 @@ class TactileMLP(PerceptionModel):
 
     def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
         self._check(readings, positions, joints)
-        return self.mlp(readings if joints is None else torch.cat([readings, joints.to(readings.dtype)], 1))
+        f = reading_input(readings, self.reading_feature)
+        return self.mlp(f if joints is None else torch.cat([f, joints.to(f.dtype)], 1))
 
 
 class TactileCNN(PerceptionModel):
@@ -602,9 +623,11 @@ class TactileCNN(PerceptionModel):
         num_taxels: int = 653,
         image_size: int = 36,
         layout: Tensor | None = None,
+        reading_feature: str = "raw",
     ) -> None:
         super().__init__()
         self.num_taxels, self.out_dim, self.image_size = num_taxels, out_dim, image_size
+        self.reading_feature = reading_feature  # pixel values: see READING_FEATURES
         S = image_size
         if layout is None:
             pixel = torch.arange(num_taxels)
@@ -634,7 +657,7 @@ class TactileCNN(PerceptionModel):
         self._check(readings, positions, joints)
         B, S = readings.shape[0], self.image_size
         img = readings.new_zeros(B, S * S)
-        img[:, self.pixel] = readings
+        img[:, self.pixel] = reading_input(readings, self.reading_feature)
         return self.head(self.features(img.view(B, 1, S, S).contiguous(memory_format=torch.channels_last)))
 
 
@@ -697,8 +720,10 @@ class TactileGCN(PerceptionModel):
         out_dim: int = 6,
         k: int = 6,
         channels: tuple[int, ...] = (32, 32, 32),
+        reading_feature: str = "raw",
     ) -> None:
         super().__init__()
+        self.reading_feature = reading_feature  # the node's force input: see READING_FEATURES
         from torch_geometric.utils import add_self_loops, is_undirected, to_undirected
 
         rest = torch.as_tensor(rest_positions, dtype=torch.float32)
@@ -746,7 +771,8 @@ class TactileGCN(PerceptionModel):
     def forward(self, readings: Tensor, positions: Tensor, joints: Tensor | None = None) -> Tensor:
         self._check(readings, positions, joints)
         B, T = readings.shape
-        x = torch.cat([readings.unsqueeze(-1), positions], -1).reshape(B * T, 4)
+        f = reading_input(readings, self.reading_feature)
+        x = torch.cat([f.unsqueeze(-1), positions], -1).reshape(B * T, 4)
         adj = self._batched_adjacency(B)
         for conv in self.convs:
             x = torch.relu(conv(x, adj))
@@ -780,15 +806,15 @@ def build_model(
                       c.use_force, c.self_loop, c.fps_start, c.exact_graph, c.force_feature, c.pos_scale,
                       c.message_layers, c.head_layers, c.residual, c.pool, c.head_hidden, c.joint_inputs)
     if c.name == "mlp":
-        return TactileMLP(c.out_dim, c.num_taxels, c.mlp_hidden, c.joint_inputs)
+        return TactileMLP(c.out_dim, c.num_taxels, c.mlp_hidden, c.joint_inputs, c.reading_feature)
     if c.name == "cnn":
-        return TactileCNN(c.out_dim, c.num_taxels, c.image_size, cnn_layout)
+        return TactileCNN(c.out_dim, c.num_taxels, c.image_size, cnn_layout, c.reading_feature)
     if c.name == "gcn":
         if rest_positions is None:
             raise ValueError("rest_positions (T, 3) is required for the gcn model")
         if tuple(rest_positions.shape) != (c.num_taxels, 3):
             raise ValueError(f"rest_positions must be ({c.num_taxels}, 3), got {tuple(rest_positions.shape)}")
-        return TactileGCN(rest_positions, c.out_dim, c.gcn_k, c.gcn_channels)
+        return TactileGCN(rest_positions, c.out_dim, c.gcn_k, c.gcn_channels, c.reading_feature)
     raise ValueError(f"name must be one of {MODEL_NAMES}, got {c.name!r}")  # unreachable after validation
 
 
