@@ -5,6 +5,8 @@
 One policy, many perceptions: success % on Simple / Middle / Hard (512 episodes each,
 Wilson 95 % intervals), seeds of one perception model pooled in one row with the seeds'
 own rates beside it. The first row is the same policy reading the true ball positions.
+Then TacGNN-32 (offline) minus each other offline perception, with the seed-and-episode
+bootstrap interval of experiments/table3_report.py.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import json
 import re
 from pathlib import Path
 
-from tacgnn.learning.evaluate import wilson_interval
+from tacgnn.learning.evaluate import seed_bootstrap_difference, wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("simple", "middle", "hard")
@@ -40,10 +42,23 @@ def cells(records_by_seed: dict[str, list[dict]]) -> list[str]:
     return out
 
 
+def difference_cells(ours: dict[str, list[dict]], other: dict[str, list[dict]]) -> list[str]:
+    """Pooled success points of `ours` minus `other` [bootstrap 95 % interval], one cell per task."""
+    def runs(records_by_seed, task):
+        recs = [next(r for r in recs if r["task"] == task) for recs in records_by_seed.values()]
+        return [(round(r["success_rate"] * r["episodes"]), r["episodes"]) for r in recs]
+
+    cells = []
+    for task in TASKS:
+        diff, lo, hi = seed_bootstrap_difference(runs(ours, task), runs(other, task))
+        cells.append(f"**{100 * diff:+.1f}** [{100 * lo:+.1f}, {100 * hi:+.1f}]")
+    return cells
+
+
 def table(results: Path, condition: str = "") -> str:
     """The tables; with `condition` (e.g. otherhand_x1), those of the evaluations under that env change."""
     pre = f"{condition}_" if condition else ""
-    rows = []
+    rows, offline = [], {}
     teacher = results / f"{pre}gt_hard_s0_model_002000.json"
     if teacher.is_file():
         rows.append(("true ball positions (the policy's own training input)", {"-": json.loads(teacher.read_text())}))
@@ -54,12 +69,20 @@ def table(results: Path, condition: str = "") -> str:
                 model, seed = (m.group(2), m.group(1)) if kind == "offline" else (m.group(1), m.group(2))
                 label = f"s{seed}" if kind == "offline" else f"s{seed} @{int(m.group(3))}"
                 groups.setdefault(model, {})[label] = json.loads(path.read_text())
+        if kind == "offline":
+            offline = groups
         for model in MODELS:
             if model in groups:
                 seeds = ", ".join(groups[model])
                 rows.append((f"{LABEL[model]}, trained {kind} ({seeds})", groups[model]))
     lines = ["| ball positions from | Simple | Middle | Hard |", "| --- | --- | --- | --- |"]
     lines += [f"| {name} | " + " | ".join(cells(recs)) + " |" for name, recs in rows]
+    if "tacgnn" in offline and len(offline) > 1:
+        lines += ["", "| TacGNN-32 (offline) minus | seeds | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
+        for model in MODELS:
+            if model != "tacgnn" and model in offline:
+                lines.append(f"| {LABEL[model]} | {len(offline['tacgnn'])} / {len(offline[model])} | "
+                             + " | ".join(difference_cells(offline["tacgnn"], offline[model])) + " |")
     cross = sorted(results.glob(f"{pre}swap_*_policy__*_perception.json"))
     if cross:
         lines += ["", "| policy trained with | perception from | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]

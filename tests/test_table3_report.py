@@ -78,6 +78,9 @@ def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
     assert "| 50.0 [" in rows["CNN, trained offline (s0)"]
     assert "| 20.0 [" in rows["TacGNN-32 with raw force, trained offline (s2)"]  # its own row, not pooled with TacGNN
     assert "| 10.0 [" in rows["MLP with log force, trained offline (s1)"]
+    differences = text.split("TacGNN-32 (offline) minus")[1]
+    cnn_row = next(line for line in differences.splitlines() if line.startswith("| CNN |"))
+    assert cnn_row.startswith("| CNN | 2 / 1 | **+20.0** [")  # (80 + 60) / 200 - 50 / 100 on Simple
     assert "| 90.0 [" in rows["CNN, trained in the loop (s1 @600)"]
     assert "| 99.0 [" in rows["true ball positions (the policy's own training input)"]
     assert rows["tacgnn_s1"].startswith("| tacgnn_s1 | cnn_s1 | 30.0 [")
