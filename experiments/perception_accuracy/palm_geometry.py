@@ -1,6 +1,6 @@
 """How well could the skin place a ball it touches? A geometric estimate beside a trained model.
 
-    .venv/bin/python experiments/perception_accuracy/palm_geometry.py RUN_DIR [DATASET]
+    .venv/bin/python experiments/perception_accuracy/palm_geometry.py RUN_DIR [RUN_DIR ...] [--dataset DATASET]
 
 For balls that touch the palm and no other patch, the palm is a plane: the ball's centre
 is the pressed taxels' reading-weighted centroid, lifted one ball radius (plus the skin's
@@ -9,9 +9,10 @@ those within 3 cm of its true centre (an oracle grouping, as in `ball_visibility
 with two balls far apart, grouping is the easy part). The script prints the RMSE per
 coordinate (cm, as the tables) of that estimate and of the model in RUN_DIR on the same
 test balls, and the model's error on the other groups of balls. If the geometry alone is
-well under the model's error, the skin holds more than the model reads from it.
+well under the model's error, the skin holds more than the model reads from it. With several
+runs, one block each (e.g. every Baoding perception: runs/perc/gthard_s?_*_pi).
 """
-import sys
+import argparse
 
 import numpy as np
 import torch
@@ -32,9 +33,17 @@ def per_coordinate_rmse(err: np.ndarray) -> float:
 
 
 def main() -> None:
-    run = sys.argv[1]
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", help="run folders of tacgnn train-perception (Baoding)")
+    parser.add_argument("--dataset", help="default: the dataset each model was trained on")
+    args = parser.parse_args()
+    for run in args.runs:
+        report(run, args.dataset)
+
+
+def report(run: str, dataset: str | None = None) -> None:
     model, cfg, meta = load_model(f"{run}/checkpoint.pt")
-    dataset = sys.argv[2] if len(sys.argv) > 2 else meta["path"]
+    dataset = dataset or meta["path"]
     data = load_tactile(dataset, cfg.task, cfg.max_samples, joints=cfg.model.joint_inputs > 0)
     train_set, test = split(data, cfg.train_fraction, cfg.seed)
     skin = from_dict(SkinLayout, read_manifest(dataset)["metadata"]["skin"])
