@@ -77,12 +77,6 @@ def table(results: Path, condition: str = "") -> str:
                 rows.append((f"{LABEL[model]}, trained {kind} ({seeds})", groups[model]))
     lines = ["| ball positions from | Simple | Middle | Hard |", "| --- | --- | --- | --- |"]
     lines += [f"| {name} | " + " | ".join(cells(recs)) + " |" for name, recs in rows]
-    if "tacgnn" in offline and len(offline) > 1:
-        lines += ["", "| TacGNN-32 (offline) minus | seeds | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
-        for model in MODELS:
-            if model != "tacgnn" and model in offline:
-                lines.append(f"| {LABEL[model]} | {len(offline['tacgnn'])} / {len(offline[model])} | "
-                             + " | ".join(difference_cells(offline["tacgnn"], offline[model])) + " |")
     cross = sorted(results.glob(f"{pre}swap_*_policy__*_perception.json"))
     if cross:
         lines += ["", "| policy trained with | perception from | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
@@ -90,6 +84,12 @@ def table(results: Path, condition: str = "") -> str:
             policy, perception = path.stem.removeprefix(f"{pre}swap_").split("__")
             lines.append(f"| {policy.removesuffix('_policy')} | {perception.removesuffix('_perception')} | "
                          + " | ".join(cells({"-": json.loads(path.read_text())})) + " |")
+    if "tacgnn" in offline and len(offline) > 1:
+        lines += ["", "| TacGNN-32 (offline) minus | seeds | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
+        for model in MODELS:
+            if model != "tacgnn" and model in offline:
+                lines.append(f"| {LABEL[model]} | {len(offline['tacgnn'])} / {len(offline[model])} | "
+                             + " | ".join(difference_cells(offline["tacgnn"], offline[model])) + " |")
     return "\n".join(lines) + "\n"
 
 
