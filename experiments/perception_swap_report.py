@@ -20,10 +20,11 @@ from tacgnn.learning.evaluate import seed_bootstrap_difference, wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("simple", "middle", "hard")
-MODELS = ("tacgnn", "tacgnnraw", "cnn", "gcn", "mlp", "mlplog")
-# experiments/force_input.sh: TacGNN-32 reading the raw force instead of its log, the MLP log1p of it
-LABEL = {"tacgnn": "TacGNN-32", "tacgnnraw": "TacGNN-32 with raw force", "cnn": "CNN", "gcn": "GCN", "mlp": "MLP",
-         "mlplog": "MLP with log force"}
+MODELS = ("tacgnn", "tacgnnraw", "cnn", "gcn", "gcnrest", "mlp", "mlplog")
+# experiments/perception_inputs.sh: TacGNN-32 reading the raw force instead of its log, the MLP log1p of it,
+# the GCN on the taxels' rest positions instead of their current ones
+LABEL = {"tacgnn": "TacGNN-32", "tacgnnraw": "TacGNN-32 with raw force", "cnn": "CNN", "gcn": "GCN",
+         "gcnrest": "GCN on rest positions", "mlp": "MLP", "mlplog": "MLP with log force"}
 # results/swap_gt__gthard_s0_cnn_pi.json, results/swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json
 OFFLINE = re.compile(r"swap_gt__gthard_s(\d+)_(\w+?)_pi\.json")
 IN_LOOP = re.compile(r"swap_gt__blind_([a-z]+)_(?:wu\d+_)?(?:lr[\d.]+_)?hard_s(\d+)_model_(\d+)\.json")

@@ -67,7 +67,7 @@ def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
     _write(tmp_path / "swap_gt__gthard_s0_tacgnn_pi.json", (0.8, 0.7, 0.6))
     _write(tmp_path / "swap_gt__gthard_s1_tacgnn_pi.json", (0.6, 0.5, 0.4))
     _write(tmp_path / "swap_gt__gthard_s0_cnn_pi.json", (0.5, 0.5, 0.5))
-    _write(tmp_path / "swap_gt__gthard_s2_tacgnnraw_pi.json", (0.2, 0.2, 0.2))  # experiments/force_input.sh
+    _write(tmp_path / "swap_gt__gthard_s2_tacgnnraw_pi.json", (0.2, 0.2, 0.2))  # experiments/perception_inputs.sh
     _write(tmp_path / "swap_gt__gthard_s1_mlplog_pi.json", (0.1, 0.1, 0.1))
     _write(tmp_path / "swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json", (0.9, 0.9, 0.9))
     _write(tmp_path / "swap_tacgnn_s1_policy__cnn_s1_perception.json", (0.3, 0.2, 0.1))

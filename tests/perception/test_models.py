@@ -417,6 +417,22 @@ def test_log1p_reading_feature_is_the_same_network_on_log1p_readings(name, rest)
     assert reading_input(torch.zeros(4), "log1p").eq(0).all()  # nothing pressed reads 0, as in raw
 
 
+def test_gcn_on_rest_positions_does_not_see_the_pose(rest):
+    """gcn_node_positions=rest: moving the taxels (the hand's pose) leaves the output unchanged."""
+    torch.manual_seed(0)
+    current = make("gcn", rest)
+    fixed = make("gcn", rest, gcn_node_positions="rest")
+    fixed.load_state_dict(current.state_dict())
+    readings, positions, _ = blob_frames(rest, 3, seed=9)
+    moved = positions + 0.5 * torch.randn_like(positions)
+    with torch.no_grad():
+        assert torch.allclose(fixed(readings, positions), fixed(readings, moved))
+        assert torch.allclose(fixed(readings, positions), current(readings, rest.expand(3, -1, -1)), atol=1e-6)
+        assert not torch.allclose(current(readings, positions), current(readings, moved))
+    with pytest.raises(ValueError, match="gcn_node_positions"):
+        PerceptionModelConfig(name="gcn", gcn_node_positions="mean")
+
+
 def test_reading_feature_is_not_tacgnns_input():
     with pytest.raises(ValueError, match="force_feature"):
         PerceptionModelConfig(name="tacgnn", reading_feature="log1p")

@@ -57,8 +57,11 @@ MODEL_NAMES = ("tacgnn", "mlp", "cnn", "gcn")
 FORCE_FEATURES = ("raw", "log")
 #: MLP, CNN and GCN force input: the reading in N ("raw", the paper), or ``log(1 + f / 0.01 N)``
 #: ("log1p": 0 where nothing presses, and a force scaled by a constant becomes nearly a shift,
-#: as TacGNN's log force does; experiments/force_input.sh).
+#: as TacGNN's log force does; experiments/perception_inputs.sh).
 READING_FEATURES = ("raw", "log1p")
+#: GCN node positions: each taxel's current position ("current", the paper's; it carries the whole
+#: hand's pose), or its fixed rest position ("rest": the nodes' inputs then vary with the forces only).
+GCN_NODE_POSITIONS = ("current", "rest")
 READING_LOG_SCALE = 0.01  # N: log1p's knee; readings well above it are compressed like a log
 #: TacGNN readout input: global max pool of the last layer ("last", the paper), or of every
 #: layer: concatenated ("all", L x C wide), concatenated and mapped to C by a linear layer
@@ -112,6 +115,7 @@ class PerceptionModelConfig:
     # GCN
     gcn_k: int = 6
     gcn_channels: tuple[int, ...] = (32, 32, 32)
+    gcn_node_positions: str = "current"  # see GCN_NODE_POSITIONS
 
     def __post_init__(self) -> None:
         for f in ("k", "downsample_layers", "mlp_hidden", "gcn_channels"):
@@ -153,6 +157,8 @@ class PerceptionModelConfig:
             raise ValueError(f"reading_feature must be one of {READING_FEATURES}, got {self.reading_feature!r}")
         if self.reading_feature != "raw" and self.name == "tacgnn":
             raise ValueError("reading_feature is the mlp, cnn and gcn input; TacGNN's force input is force_feature")
+        if self.gcn_node_positions not in GCN_NODE_POSITIONS:
+            raise ValueError(f"gcn_node_positions must be one of {GCN_NODE_POSITIONS}, got {self.gcn_node_positions!r}")
         if self.pool not in POOLS:
             raise ValueError(f"pool must be one of {POOLS}, got {self.pool!r}")
         if isinstance(self.pos_scale, bool) or not isinstance(self.pos_scale, (int, float)) or not self.pos_scale > 0:
@@ -699,7 +705,8 @@ class TactileGCN(PerceptionModel):
 
     The graph is built once from the rest positions: symmetric kNN (k = 6),
     :math:`\hat A = \tilde D^{-1/2}(A + I)\tilde D^{-1/2}`. Node input
-    :math:`[f_i, x_i, y_i, z_i]` (force and *current* position). Layers
+    :math:`[f_i, x_i, y_i, z_i]` (force and *current* position; with
+    ``node_positions="rest"`` the rest position, so the nodes do not see the hand's pose). Layers
     (``torch_geometric.nn.GCNConv``) :math:`H' = \mathrm{ReLU}(\hat A H W + b)`
     with widths ``[32, 32, 32]``, then global max pool and MLP ``[32, out]``.
 
@@ -721,9 +728,11 @@ class TactileGCN(PerceptionModel):
         k: int = 6,
         channels: tuple[int, ...] = (32, 32, 32),
         reading_feature: str = "raw",
+        node_positions: str = "current",
     ) -> None:
         super().__init__()
         self.reading_feature = reading_feature  # the node's force input: see READING_FEATURES
+        self.node_positions = node_positions  # see GCN_NODE_POSITIONS
         from torch_geometric.utils import add_self_loops, is_undirected, to_undirected
 
         rest = torch.as_tensor(rest_positions, dtype=torch.float32)
@@ -738,6 +747,7 @@ class TactileGCN(PerceptionModel):
         if not is_undirected(ei, w, num_nodes=T):  # the propagation relies on it
             raise AssertionError("the GCN adjacency must be symmetric")
         self.register_buffer("edge_index", ei, persistent=False)
+        self.register_buffer("rest", rest, persistent=False)
         self.register_buffer("edge_weight", w, persistent=False)
         sizes = [4, *channels]
         self.convs = nn.ModuleList(
@@ -772,6 +782,8 @@ class TactileGCN(PerceptionModel):
         self._check(readings, positions, joints)
         B, T = readings.shape
         f = reading_input(readings, self.reading_feature)
+        if self.node_positions == "rest":
+            positions = self.rest.to(positions.dtype).expand(B, T, 3)
         x = torch.cat([f.unsqueeze(-1), positions], -1).reshape(B * T, 4)
         adj = self._batched_adjacency(B)
         for conv in self.convs:
@@ -814,7 +826,7 @@ def build_model(
             raise ValueError("rest_positions (T, 3) is required for the gcn model")
         if tuple(rest_positions.shape) != (c.num_taxels, 3):
             raise ValueError(f"rest_positions must be ({c.num_taxels}, 3), got {tuple(rest_positions.shape)}")
-        return TactileGCN(rest_positions, c.out_dim, c.gcn_k, c.gcn_channels, c.reading_feature)
+        return TactileGCN(rest_positions, c.out_dim, c.gcn_k, c.gcn_channels, c.reading_feature, c.gcn_node_positions)
     raise ValueError(f"name must be one of {MODEL_NAMES}, got {c.name!r}")  # unreachable after validation
 
 

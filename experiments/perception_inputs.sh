@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
-# Why does TacGNN carry over to the other hand best? Its force input, swapped both ways. TacGNN
-# reads log(f / 1 N) at each activated taxel; the MLP reads the raw force in N. Heavier balls
-# press harder; a log turns that into a shift (which TacGNN's edge differences g(f_j) - g(f_i)
-# cancel), the raw force does not. So:
-#   tacgnnraw  TacGNN-32 with the raw force (model.force_feature=raw)
-#   mlplog     the MLP reading log(1 + f / 0.01 N) (model.reading_feature=log1p)
-# TacGNN's other difference, that it reads where the activated taxels are, stays.
+# What in a perception's input makes it carry over to another hand, or fail in the loop? Each
+# variant changes one input of one model:
+#   tacgnnraw  TacGNN-32 with the raw force in N instead of log(f / 1 N) (model.force_feature=raw).
+#              Heavier balls press harder; a log turns that into a shift (which TacGNN's edge
+#              differences g(f_j) - g(f_i) cancel), the raw force does not.
+#   mlplog     the MLP reading log(1 + f / 0.01 N) instead of f (model.reading_feature=log1p)
+#   gcnrest    the GCN with each taxel's rest position as node input instead of its current one
+#              (model.gcn_node_positions=rest): the nodes no longer carry the hand's pose
 #
-#   experiments/force_input.sh [SEEDS...]        (default: 0 1 2)
+#   [VARIANTS="tacgnnraw mlplog gcnrest"] experiments/perception_inputs.sh [SEEDS...]   (default: 0 1 2)
 #
 # For each variant and seed: the perception trained offline on the teacher's rollouts (as
 # experiments/table3.sh step 3, 10 epochs) -> runs/perc/gthard_sK_<variant>_pi; then the teacher
@@ -23,8 +24,12 @@ GT=runs/gt_hard_s0/model_002000.pt
 DATA=data/baoding_gthard_s0
 SEEDS=("$@"); [ ${#SEEDS[@]} -gt 0 ] || SEEDS=(0 1 2)
 [ -f $GT ] && [ -d $DATA ] || { echo "missing $GT or $DATA: run WARMUP=4 GT_SEED=0 experiments/table3.sh tacgnn 0 first"; exit 1; }
-for variant in "tacgnnraw tacgnn model.force_feature=raw" "mlplog mlp model.reading_feature=log1p"; do
-  read -r name model setting <<< "$variant"
+declare -A MODEL=([tacgnnraw]=tacgnn [mlplog]=mlp [gcnrest]=gcn)
+declare -A SETTING=([tacgnnraw]=model.force_feature=raw [mlplog]=model.reading_feature=log1p
+                    [gcnrest]=model.gcn_node_positions=rest)
+for name in ${VARIANTS:-tacgnnraw mlplog gcnrest}; do
+  [ -n "${MODEL[$name]:-}" ] || { echo "unknown variant $name (tacgnnraw, mlplog, gcnrest)"; exit 1; }
+  model=${MODEL[$name]} setting=${SETTING[$name]}
   for seed in "${SEEDS[@]}"; do
     PERC=runs/perc/gthard_s${seed}_${name}_pi
     if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
