@@ -59,10 +59,10 @@ FORCE_FEATURES = ("raw", "log")
 #: ("log1p": 0 where nothing presses, and a force scaled by a constant becomes nearly a shift,
 #: as TacGNN's log force does; experiments/perception_inputs.sh).
 READING_FEATURES = ("raw", "log1p")
+READING_LOG_SCALE = 0.01  # N: log1p's knee; readings well above it are compressed like a log
 #: GCN node positions: each taxel's current position ("current", the paper's; it carries the whole
 #: hand's pose), or its fixed rest position ("rest": the nodes' inputs then vary with the forces only).
 GCN_NODE_POSITIONS = ("current", "rest")
-READING_LOG_SCALE = 0.01  # N: log1p's knee; readings well above it are compressed like a log
 #: TacGNN readout input: global max pool of the last layer ("last", the paper), or of every
 #: layer: concatenated ("all", L x C wide), concatenated and mapped to C by a linear layer
 #: without bias ("jk", jumping knowledge; the head's input stays C wide) or summed ("sum").
