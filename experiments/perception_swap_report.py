@@ -16,7 +16,9 @@ import json
 import re
 from pathlib import Path
 
-from tacgnn.learning.evaluate import seed_bootstrap_difference, wilson_interval
+from table3_report import difference_cells, successes  # experiments/, beside this script
+
+from tacgnn.learning.evaluate import wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("simple", "middle", "hard")
@@ -36,24 +38,11 @@ def cells(records_by_seed: dict[str, list[dict]]) -> list[str]:
     for task in TASKS:
         recs = {seed: next(r for r in recs if r["task"] == task) for seed, recs in records_by_seed.items()}
         n = sum(r["episodes"] for r in recs.values())
-        wins = sum(round(r["success_rate"] * r["episodes"]) for r in recs.values())
+        wins = sum(successes(r) for r in recs.values())
         lo, hi = wilson_interval(wins, n)
         seeds = " / ".join(f"{100 * r['success_rate']:.1f}" for r in recs.values())
         out.append(f"{100 * wins / n:.1f} [{100 * lo:.1f}-{100 * hi:.1f}]" + (f" ({seeds})" if len(recs) > 1 else ""))
     return out
-
-
-def difference_cells(ours: dict[str, list[dict]], other: dict[str, list[dict]]) -> list[str]:
-    """Pooled success points of `ours` minus `other` [bootstrap 95 % interval], one cell per task."""
-    def runs(records_by_seed, task):
-        recs = [next(r for r in recs if r["task"] == task) for recs in records_by_seed.values()]
-        return [(round(r["success_rate"] * r["episodes"]), r["episodes"]) for r in recs]
-
-    cells = []
-    for task in TASKS:
-        diff, lo, hi = seed_bootstrap_difference(runs(ours, task), runs(other, task))
-        cells.append(f"**{100 * diff:+.1f}** [{100 * lo:+.1f}, {100 * hi:+.1f}]")
-    return cells
 
 
 def table(results: Path, condition: str = "") -> str:

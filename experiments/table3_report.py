@@ -47,7 +47,7 @@ def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[d
     return found
 
 
-def task_records(per_seed: dict[int, list[dict]], task: str) -> list[dict]:
+def task_records(per_seed: dict, task: str) -> list[dict]:
     """Every seed's record of one task."""
     return [r for recs in per_seed.values() for r in recs if r["task"] == task]
 
@@ -77,9 +77,10 @@ def pooled_cells(per_seed: dict[int, list[dict]]) -> list[str]:
     return cells
 
 
-def difference_cells(ours: dict[int, list[dict]], other: dict[int, list[dict]]) -> list[str]:
+def difference_cells(ours: dict, other: dict) -> list[str]:
     """One cell per task: pooled success points of `ours` minus `other` [seed-and-episode
-    bootstrap 95 % interval]."""
+    bootstrap 95 % interval]. Each side maps a seed (or any label) to that run's records, as
+    `collect` returns (experiments/perception_swap_report.py passes its own groups)."""
     def runs(per_seed, task):
         return [(successes(r), r["episodes"]) for r in task_records(per_seed, task)]
 

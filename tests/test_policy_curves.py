@@ -1,20 +1,12 @@
 """experiments/policy_curves.py: learning curves read from TensorBoard, seeds averaged on shared iterations."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "policy_curves.py"
-
 
 @pytest.fixture(scope="module")
-def curves():
-    spec = importlib.util.spec_from_file_location("policy_curves", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def curves(experiment_script):
+    return experiment_script("policy_curves")
 
 
 def test_a_resumed_run_merges_its_event_files(curves, tmp_path):

@@ -1,22 +1,15 @@
 """experiments/table3_report.py: episodes of all seeds pooled into one rate and interval."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
 from tacgnn.learning.evaluate import wilson_interval
 
-SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "table3_report.py"
-
 
 @pytest.fixture(scope="module")
-def report():
-    spec = importlib.util.spec_from_file_location("table3_report", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def report(experiment_script):
+    return experiment_script("table3_report")
 
 
 def _write(path, rates, steps=30.0, episodes=100):
@@ -59,10 +52,8 @@ def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
     assert report.pooled_cells(report.collect(tmp_path, "blind_mlp_hard", 800))[0].endswith("(0.0 / 50.0); 30 steps")
 
 
-def test_perception_swap_report_pools_seeds_of_one_perception(tmp_path):
-    spec = importlib.util.spec_from_file_location("swap_report", SCRIPT.parent / "perception_swap_report.py")
-    swap = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(swap)
+def test_perception_swap_report_pools_seeds_of_one_perception(experiment_script, tmp_path):
+    swap = experiment_script("perception_swap_report")
     _write(tmp_path / "gt_hard_s0_model_002000.json", (0.99, 0.98, 0.96))
     _write(tmp_path / "swap_gt__gthard_s0_tacgnn_pi.json", (0.8, 0.7, 0.6))
     _write(tmp_path / "swap_gt__gthard_s1_tacgnn_pi.json", (0.6, 0.5, 0.4))
