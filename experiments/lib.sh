@@ -5,6 +5,14 @@
 resume() { compgen -G "$1/model_*.pt" >/dev/null && echo --resume || true; }
 # last RUN_DIR ITERATIONS: the checkpoint written after that many iterations
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
+# offline_perception RUN MODEL SEED DATASET [SETTING...]: train a Baoding perception for 10 epochs
+# (skipped when RUN finished them, resumed when RUN holds a checkpoint); SETTINGs go to --set
+offline_perception() {
+  local run=$1 model=$2 seed=$3 data=$4; shift 4
+  grep -q '"epoch": 9' $run/history.json 2>/dev/null && return 0
+  .venv/bin/tacgnn train-perception --task baoding --model $model --dataset $data --run $run --epochs 10 \
+    --seed $seed $( [ -f $run/checkpoint.pt ] && echo --resume || true ) $( [ $# -gt 0 ] && echo --set "$@" || true )
+}
 # other_hand K: the env changes of the "other hand" (a stand-in for a real hand), applied K times:
 # K=1 is finger stiffness x0.7, damping x1.5, 0.25 kg balls instead of 0.15, ball and finger
 # friction x0.7 (domain randomisation draws at most x0.8 / x1.2 / 0.2 kg / x0.8)

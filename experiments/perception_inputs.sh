@@ -19,7 +19,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # other_hand
+source experiments/lib.sh  # offline_perception, other_hand
 GT=runs/gt_hard_s0/model_002000.pt
 DATA=data/baoding_gthard_s0
 SEEDS=("$@"); [ ${#SEEDS[@]} -gt 0 ] || SEEDS=(0 1 2)
@@ -32,10 +32,7 @@ for name in ${VARIANTS:-tacgnnraw mlplog gcnrest}; do
   model=${MODEL[$name]} setting=${SETTING[$name]}
   for seed in "${SEEDS[@]}"; do
     PERC=runs/perc/gthard_s${seed}_${name}_pi
-    if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
-      $T train-perception --task baoding --model $model --dataset $DATA --run $PERC --epochs 10 --seed $seed \
-        $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) --set $setting
-    fi
+    offline_perception $PERC $model $seed $DATA $setting
     out=results/swap_gt__$(basename $PERC).json
     [ -f $out ] || $T evaluate $GT --perception $PERC/checkpoint.pt --task all --episodes 512 --envs 128 --out $out
     out=results/otherhand_x1_swap_gt__$(basename $PERC).json

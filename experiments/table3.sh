@@ -40,7 +40,7 @@ TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )$( [ "$LR" 
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
-source experiments/lib.sh  # resume, last
+source experiments/lib.sh  # resume, last, offline_perception
 
 GT_SIMPLE=runs/gt_s0
 GT_SIMPLE_ITERS=${GT_SIMPLE_ITERS:-2500}
@@ -55,10 +55,7 @@ fi
 DATA=data/baoding_gthard_s$GT_SEED
 $T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED
 PERC=runs/perc/gthard_s${SEED}_${MODEL}${JOINTS}_pi  # warm-up or not: same start
-if ! grep -q '"epoch": 9' $PERC/history.json 2>/dev/null; then
-  $T train-perception --task baoding --model $MODEL --dataset $DATA --run $PERC --epochs 10 --seed $SEED \
-    $( [ -f $PERC/checkpoint.pt ] && echo --resume || true ) $( [ -n "$PSET" ] && echo --set $PSET || true )
-fi
+offline_perception $PERC $MODEL $SEED $DATA $PSET
 RUN=runs/blind_${TAG}_hard_s$SEED
 if [ ! -f "$(last $RUN $ITERS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hard --ppo max_iterations=$ITERS \
