@@ -13,6 +13,7 @@ well under the model's error, the skin holds more than the model reads from it. 
 runs, one block each (e.g. every Baoding perception: runs/perc/gthard_s?_*_pi).
 """
 import argparse
+import functools
 
 import numpy as np
 import torch
@@ -32,6 +33,11 @@ def per_coordinate_rmse(err: np.ndarray) -> float:
     return float(np.sqrt((err**2).mean())) if len(err) else float("nan")
 
 
+@functools.lru_cache(maxsize=1)  # several runs trained on one dataset read it once
+def dataset_frames(dataset: str, task: str, max_samples: int, joints: bool):
+    return load_tactile(dataset, task, max_samples, joints=joints)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", help="run folders of tacgnn train-perception (Baoding)")
@@ -44,7 +50,7 @@ def main() -> None:
 def report(run: str, dataset: str | None = None) -> None:
     model, cfg, meta = load_model(f"{run}/checkpoint.pt")
     dataset = dataset or meta["path"]
-    data = load_tactile(dataset, cfg.task, cfg.max_samples, joints=cfg.model.joint_inputs > 0)
+    data = dataset_frames(dataset, cfg.task, cfg.max_samples, cfg.model.joint_inputs > 0)
     train_set, test = split(data, cfg.train_fraction, cfg.seed)
     skin = from_dict(SkinLayout, read_manifest(dataset)["metadata"]["skin"])
     palm = skin.patch_index() == 0
