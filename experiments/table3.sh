@@ -15,6 +15,10 @@
 #   LR=x            (environment) PPO learning rate of the blind fine-tuning, default 0.0001 (runs
 #                   tagged _lr0.0001). LR=0.0003 is the recipe of sessions 2-6, whose runs carry no
 #                   tag: it breaks the starting policy in the first iterations (docs/results.md, 10)
+#   TEACHER_TAG=x   (environment) a name for the ground-truth teacher in runs/gt_hard_s$GT_SEED when it is
+#                   not the one earlier results came from (it was retrained: PPO on CPU does not repeat
+#                   bit for bit). Perception and blind runs are tagged _x and the teacher is evaluated as
+#                   results/gt_x_hard_sK_..., so runs from different teachers never share a results file
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
 # 2. its rollouts as the perception dataset (50,000 frames, from the first step; recorded on the
@@ -36,7 +40,8 @@ PSET=${4:-}
 WARMUP=${WARMUP:-0}
 LR=${LR:-0.0001}
 JOINTS=$( [ -n "$PSET" ] && echo "_joints" || true )
-TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )$( [ "$LR" != 0.0003 ] && echo "_lr$LR" || true )
+TT=${TEACHER_TAG:+_$TEACHER_TAG}
+TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )$( [ "$LR" != 0.0003 ] && echo "_lr$LR" || true )$TT
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
@@ -54,7 +59,7 @@ if [ ! -f "$(last $GT 2000)" ]; then
 fi
 DATA=data/baoding_gthard_s$GT_SEED
 $T make-dataset baoding --policy "$(last $GT 2000)" --out $DATA --samples 50000 --settle-steps 0 --seed $GT_SEED
-PERC=runs/perc/gthard_s${SEED}_${MODEL}${JOINTS}_pi  # warm-up or not: same start
+PERC=runs/perc/gthard_s${SEED}_${MODEL}${JOINTS}${TT}_pi  # warm-up or not: same start
 offline_perception $PERC $MODEL $SEED $DATA $PSET
 RUN=runs/blind_${TAG}_hard_s$SEED
 if [ ! -f "$(last $RUN $ITERS)" ]; then
@@ -66,5 +71,6 @@ if [ ! -f "$(last $RUN $ITERS)" ]; then
 fi
 for ckpt in "$(last $GT 2000)" "$(last $RUN $ITERS)"; do
   out=results/$(basename $(dirname $ckpt))_$(basename $ckpt .pt).json
+  [ "$ckpt" = "$(last $GT 2000)" ] && out=${out/gt_hard/gt${TT}_hard}
   [ -f $out ] || $T evaluate $ckpt --task all --episodes 512 --envs 128 --out $out
 done

@@ -4,7 +4,9 @@
 
 Reads results/blind_<model>_hard_s<seed>_model_<iterations>.json (and the ground-truth
 teacher's results/gt_hard_s<seed>_model_002000.json; with `--condition C`, the files
-results/C_blind_... and results/C_gt_hard_... of evaluations under a changed env), pools the episodes of all seeds of a
+results/C_blind_... and results/C_gt_hard_... of evaluations under a changed env; with `--teacher T`,
+the runs of table3.sh's TEACHER_TAG=T, results/blind_<model>_wu4_lr0.0001_T_hard_... and
+results/gt_T_hard_..., alone), pools the episodes of all seeds of a
 row into one success rate with a Wilson 95 % interval, and lists the seeds' own rates
 beside it, so the spread over seeds and the uncertainty from the episodes both show.
 """
@@ -33,8 +35,16 @@ ROWS = [("mlp", "MLP", "mlp"), ("cnn", "CNN", "cnn"), ("gcn", "GCN", "gcn"), ("t
         ("gcn_wu4", "GCN, 4 perception warm-up rounds (beyond the paper)", "gcn"),
         ("tacgnn_wu4", "TacGNN-32, 4 perception warm-up rounds (beyond the paper)", "tacgnn"),
         ("tacgnn_joints", "TacGNN-32 + joint angles (beyond the paper)", None)]
+RECIPE_MODELS = (("mlp", "MLP"), ("cnn", "CNN"), ("gcn", "GCN"), ("tacgnn", "TacGNN-32"))
 ROWS += [(f"{model}_wu4_lr0.0001", f"{label}, warm-up, PPO learning rate 1e-4 (session 7)", model)
-         for model, label in (("mlp", "MLP"), ("cnn", "CNN"), ("gcn", "GCN"), ("tacgnn", "TacGNN-32"))]
+         for model, label in RECIPE_MODELS]
+
+
+def teacher_rows(teacher: str) -> list[tuple[str, str, str]]:
+    """The rows of the runs made from a retrained teacher (table3.sh's TEACHER_TAG): the current
+    recipe only, as no other ran from it."""
+    return [(f"{model}_wu4_lr0.0001_{teacher}", f"{label}, warm-up, learning rate 1e-4, teacher {teacher}", model)
+            for model, label in RECIPE_MODELS]
 
 
 def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[dict]]:
@@ -107,13 +117,20 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "docs" / "table3.md"))
     ap.add_argument("--condition", default="", help="report the evaluations under a changed env instead, "
                     "e.g. otherhand_x1 (results/otherhand_x1_blind_..., written by experiments/other_hand.sh)")
+    ap.add_argument("--teacher", default="", help="report the runs of a retrained teacher instead: "
+                    "experiments/table3.sh's TEACHER_TAG, e.g. t2 (results/blind_..._t2_hard_..., results/gt_t2_hard_...)")
     args = ap.parse_args()
     results = Path(args.results)
     pre = f"{args.condition}_" if args.condition else ""
+    tt = f"_{args.teacher}" if args.teacher else ""
+    rows = teacher_rows(args.teacher) if args.teacher else ROWS
     title = "# Table III: blind Baoding, success rate by perception model"
     if args.condition:
         title += (f", evaluated under the change `{args.condition}` (for `otherhand_xK`: "
                   f"`experiments/other_hand.sh {args.iterations} K`, 256 episodes per task)")
+    if args.teacher:
+        title += (f", runs from the retrained teacher `{args.teacher}` (`TEACHER_TAG={args.teacher} WARMUP=4 "
+                  "GT_SEED=0 experiments/table3.sh MODEL SEED N`)")
     lines = [title, "",
              f"Made by `experiments/table3.sh MODEL SEED {args.iterations}` per row and seed (for a "
              f"checkpoint inside a longer run: `tacgnn evaluate RUN/model_{args.iterations:06d}.pt --task all "
@@ -126,15 +143,15 @@ def main() -> None:
              "(each seed's rate), mean steps to success. The paper's figures follow in the same row.", "",
              "| perception | Simple | Middle | Hard | paper Simple / Middle / Hard | paper steps |",
              "|---|---|---|---|---|---|"]
-    teacher = collect(results, f"{pre}gt_hard", 2000)
+    teacher = collect(results, f"{pre}gt{tt}_hard", 2000)
     lines.append("| ground truth (teacher, Hard fine-tune) | " + " | ".join(pooled_cells(teacher)) + " | - | - |")
-    for key, label, paper_key in ROWS:
+    for key, label, paper_key in rows:
         per_seed = collect(results, f"{pre}blind_{key}_hard", args.iterations)
         paper = PAPER.get(paper_key)
         paper_cells = (" / ".join(map(str, paper[0])), " / ".join(map(str, paper[1]))) if paper else ("-", "-")
         lines.append(f"| {label} | " + " | ".join(pooled_cells(per_seed)) + f" | {paper_cells[0]} | {paper_cells[1]} |")
     ours_key, baselines = COMPARE
-    ours = collect(results, f"{pre}blind_{ours_key}_hard", args.iterations)
+    ours = collect(results, f"{pre}blind_{ours_key}{tt}_hard", args.iterations)
     lines += ["", "## TacGNN-32 minus each baseline (learning rate 1e-4, warm-up rows)", "",
               "Success points, TacGNN-32's pooled rate minus the baseline's, with a 95 % interval from "
               "a bootstrap that resamples the seeds of each model and then each seed's episodes "
@@ -143,7 +160,7 @@ def main() -> None:
               "two or three seeds per model it understates the spread between seeds.", "",
               "| TacGNN-32 minus | seeds (TacGNN / baseline) | Simple | Middle | Hard |", "|---|---|---|---|---|"]
     for key, label in baselines:
-        other = collect(results, f"{pre}blind_{key}_hard", args.iterations)
+        other = collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations)
         lines.append(f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |")
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)

@@ -43,6 +43,31 @@ def test_missing_rows_read_not_run(report, tmp_path):
     assert rows["| MLP"].count("not run") == 3
 
 
+
+def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
+    """Runs from another teacher (table3.sh's TEACHER_TAG) must neither pool with nor be compared to
+    the runs of the first teacher, whose results files sit in the same folder."""
+    out = tmp_path / "t3.md"
+    _write(tmp_path / "gt_hard_s0_model_002000.json", (0.98, 0.98, 0.96))
+    _write(tmp_path / "gt_t2_hard_s0_model_002000.json", (0.5, 0.5, 0.5))
+    _write(tmp_path / "blind_tacgnn_wu4_lr0.0001_hard_s1_model_000600.json", (0.1, 0.1, 0.1))
+    _write(tmp_path / "blind_tacgnn_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.9, 0.8, 0.7))
+    _write(tmp_path / "blind_gcn_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.6, 0.6, 0.6))
+    import sys
+    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(tmp_path), "--out", str(out),
+                                "--iterations", "600", "--teacher", "t2"]
+    try:
+        report.main()
+    finally:
+        sys.argv = argv
+    text = out.read_text()
+    rows = {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith("| ")}
+    assert rows["| ground truth (teacher, Hard fine-tune)"].startswith("| ground truth (teacher, Hard fine-tune) | **50.0**")
+    assert "(90.0); " in rows["| TacGNN-32, warm-up, learning rate 1e-4, teacher t2"]
+    assert rows["| MLP, warm-up, learning rate 1e-4, teacher t2"].count("not run") == 3
+    assert "| TacGNN-32, warm-up, PPO learning rate 1e-4 (session 7)" not in rows  # the first teacher's rows
+    assert rows["| GCN"].startswith("| GCN | 1 / 1 | **+30.0** [")  # 90 - 60 on Simple, t2 runs only
+
 def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
     """A run that never succeeds has NaN mean steps: it must not turn the pooled steps into NaN."""
     _write(tmp_path / "blind_mlp_hard_s0_model_000800.json", (0.0, 0.0, 0.0), steps=float("nan"))
