@@ -11,6 +11,7 @@
 # the perceptions compared with the policy held fixed.
 #
 #   experiments/other_hand.sh [ITERATIONS] [K]      (defaults 600 and 1)
+#   TEACHER_TAG=x (environment) the runs of a retrained teacher instead (experiments/table3.sh)
 #
 # -> results/otherhand_x$K_<run>_model_NNNNNN.json and results/otherhand_x$K_swap_gt__<perception>.json;
 #    the tables:
@@ -23,19 +24,21 @@ K=${2:-1}
 T=.venv/bin/tacgnn
 source experiments/lib.sh  # last, other_hand
 SET=$(other_hand $K)
+TT=${TEACHER_TAG:+_$TEACHER_TAG}
 GT=runs/gt_hard_s0/model_002000.pt
 runs=(runs/gt_hard_s0:2000)
 for model in tacgnn cnn mlp gcn; do
-  for run in runs/blind_${model}_wu4_lr0.0001_hard_s*; do
+  for run in runs/blind_${model}_wu4_lr0.0001${TT}_hard_s*; do
     [ -f "$(last $run $ITERS)" ] && runs+=("$run:$ITERS")
   done
 done
 for entry in "${runs[@]}"; do
   run=${entry%:*}; n=${entry#*:}
   out=results/otherhand_x${K}_$(basename $run)_model_$(printf %06d $n).json
+  [ "$run" = runs/gt_hard_s0 ] && out=${out/gt_hard/gt${TT}_hard}
   [ -f $out ] || $T evaluate "$(last $run $n)" --task all --episodes 256 --envs 128 --out $out --set $SET
 done
-for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,mlp}_pi; do
+for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,mlp}${TT}_pi; do
   out=results/otherhand_x${K}_swap_gt__$(basename $p).json
   if [ -f $p/checkpoint.pt ] && [ ! -f $out ]; then
     $T evaluate $GT --perception $p/checkpoint.pt --task all --episodes 256 --envs 128 --out $out --set $SET
