@@ -27,7 +27,7 @@ SET=$(other_hand $K)
 TT=${TEACHER_TAG:+_$TEACHER_TAG}
 GT=runs/gt_hard_s0/model_002000.pt
 runs=(runs/gt_hard_s0:2000)
-for model in tacgnn cnn mlp gcn; do
+for model in tacgnn tacgnn_joints cnn mlp gcn; do
   for run in runs/blind_${model}_wu4_lr0.0001${TT}_hard_s*; do
     [ -f "$(last $run $ITERS)" ] && runs+=("$run:$ITERS")
   done

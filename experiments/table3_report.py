@@ -43,8 +43,10 @@ ROWS += [(f"{model}_wu4_lr0.0001", f"{label}, warm-up, PPO learning rate 1e-4 (s
 def teacher_rows(teacher: str) -> list[tuple[str, str, str]]:
     """The rows of the runs made from a retrained teacher (table3.sh's TEACHER_TAG): the current
     recipe only, as no other ran from it."""
-    return [(f"{model}_wu4_lr0.0001_{teacher}", f"{label}, warm-up, learning rate 1e-4, teacher {teacher}", model)
+    rows = [(f"{model}_wu4_lr0.0001_{teacher}", f"{label}, warm-up, learning rate 1e-4, teacher {teacher}", model)
             for model, label in RECIPE_MODELS]
+    return rows + [(f"tacgnn_joints_wu4_lr0.0001_{teacher}", f"TacGNN-32 + joint angles, teacher {teacher} "
+                    "(beyond the paper)", None)]
 
 
 def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[dict]]:
@@ -162,6 +164,15 @@ def main() -> None:
     for key, label in baselines:
         other = collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations)
         lines.append(f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |")
+    # the GCN reads every taxel's current position, that is the hand's pose (docs/results.md, section 12):
+    # TacGNN given the pose as joint angles, against it
+    with_joints = collect(results, f"{pre}blind_tacgnn_joints_wu4_lr0.0001{tt}_hard", args.iterations)
+    if with_joints:
+        gcn = collect(results, f"{pre}blind_gcn_wu4_lr0.0001{tt}_hard", args.iterations)
+        lines += ["", "| TacGNN-32 + joint angles minus | seeds | Simple | Middle | Hard |", "|---|---|---|---|---|",
+                  f"| GCN | {len(with_joints)} / {len(gcn)} | " + " | ".join(difference_cells(with_joints, gcn)) + " |",
+                  f"| TacGNN-32 | {len(with_joints)} / {len(ours)} | "
+                  + " | ".join(difference_cells(with_joints, ours)) + " |"]
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)
     print(text)

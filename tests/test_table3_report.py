@@ -67,6 +67,17 @@ def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     assert rows["| MLP, warm-up, learning rate 1e-4, teacher t2"].count("not run") == 3
     assert "| TacGNN-32, warm-up, PPO learning rate 1e-4 (session 7)" not in rows  # the first teacher's rows
     assert rows["| GCN"].startswith("| GCN | 1 / 1 | **+30.0** [")  # 90 - 60 on Simple, t2 runs only
+    assert "TacGNN-32 + joint angles minus" not in text  # no such run: no such section
+
+    _write(tmp_path / "blind_tacgnn_joints_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.95, 0.9, 0.9))
+    sys.argv = ["table3_report.py", "--results", str(tmp_path), "--out", str(out), "--iterations", "600", "--teacher", "t2"]
+    try:
+        report.main()
+    finally:
+        sys.argv = argv
+    joints = out.read_text().split("TacGNN-32 + joint angles minus")[1].splitlines()
+    assert joints[2].startswith("| GCN | 1 / 1 | **+35.0** [")  # 95 - 60
+    assert joints[3].startswith("| TacGNN-32 | 1 / 1 | **+5.0** [")  # 95 - 90
 
 def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
     """A run that never succeeds has NaN mean steps: it must not turn the pooled steps into NaN."""
