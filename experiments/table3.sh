@@ -5,7 +5,9 @@
 #
 #   MODEL           perception model: tacgnn, mlp, cnn or gcn (32 channels for TacGNN)
 #   ITERATIONS      PPO iterations of the blind fine-tuning (default 1200)
-#   PERCEPTION_SET  extra perception settings, e.g. "model.joint_inputs=16" (skin + joint angles)
+#   PERCEPTION_SET  extra perception settings, e.g. "model.joint_inputs=16" (skin + joint angles);
+#                   its runs are tagged _joints, or _$PSET_TAG when PSET_TAG is set (e.g. PSET_TAG=rest
+#                   for "model.gcn_node_positions=rest")
 #   GT_SEED=k       (environment) take the ground-truth policy and dataset of seed k (default: SEED),
 #                   so that seeds of the blind stage share one ground-truth policy
 #   GT_SIMPLE_ITERS=n  (environment) iterations of the Simple-task ground-truth policy runs/gt_s0
@@ -39,7 +41,7 @@ ITERS=${3:-1200}
 PSET=${4:-}
 WARMUP=${WARMUP:-0}
 LR=${LR:-0.0001}
-JOINTS=$( [ -n "$PSET" ] && echo "_joints" || true )
+JOINTS=$( [ -n "$PSET" ] && echo "_${PSET_TAG:-joints}" || true )
 TT=${TEACHER_TAG:+_$TEACHER_TAG}
 TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )$( [ "$LR" != 0.0003 ] && echo "_lr$LR" || true )$TT
 T=.venv/bin/tacgnn

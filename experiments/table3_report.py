@@ -46,7 +46,9 @@ def teacher_rows(teacher: str) -> list[tuple[str, str, str]]:
     rows = [(f"{model}_wu4_lr0.0001_{teacher}", f"{label}, warm-up, learning rate 1e-4, teacher {teacher}", model)
             for model, label in RECIPE_MODELS]
     return rows + [(f"tacgnn_joints_wu4_lr0.0001_{teacher}", f"TacGNN-32 + joint angles, teacher {teacher} "
-                    "(beyond the paper)", None)]
+                    "(beyond the paper)", None),
+                   (f"gcn_rest_wu4_lr0.0001_{teacher}", f"GCN on the taxels' rest positions, teacher {teacher} "
+                    "(`PSET_TAG=rest ... model.gcn_node_positions=rest`)", "gcn")]
 
 
 def collect(results: Path, run_prefix: str, iterations: int) -> dict[int, list[dict]]:
