@@ -45,11 +45,14 @@ def cells(records_by_seed: dict[str, list[dict]]) -> list[str]:
     return out
 
 
-def table(results: Path, condition: str = "") -> str:
-    """The tables; with `condition` (e.g. otherhand_x1), those of the evaluations under that env change."""
+def table(results: Path, condition: str = "", teacher_tag: str = "") -> str:
+    """The tables; with `condition` (e.g. otherhand_x1), those of the evaluations under that env change;
+    with `teacher_tag` (experiments/table3.sh's TEACHER_TAG), the offline perceptions trained on that
+    teacher's rollouts and run through it, alone."""
     pre = f"{condition}_" if condition else ""
+    tt = f"_{teacher_tag}" if teacher_tag else ""
     rows, offline = [], {}
-    teacher = results / f"{pre}gt_hard_s0_model_002000.json"
+    teacher = results / f"{pre}gt{tt}_hard_s0_model_002000.json"
     if teacher.is_file():
         rows.append(("true ball positions (the policy's own training input)", {"-": json.loads(teacher.read_text())}))
     for kind, pattern in (("offline", OFFLINE), ("in the loop", IN_LOOP)):
@@ -57,6 +60,12 @@ def table(results: Path, condition: str = "") -> str:
         for path in sorted(results.glob(f"{pre}swap_gt__*.json")):
             if m := pattern.fullmatch(path.name.removeprefix(pre)):
                 model, seed = (m.group(2), m.group(1)) if kind == "offline" else (m.group(1), m.group(2))
+                if kind == "offline":  # gthard_s1_gcn_t2_pi: a perception of teacher t2
+                    if tt and not model.endswith(tt):
+                        continue
+                    model = model.removesuffix(tt)
+                elif tt:
+                    continue  # the in-loop swaps ran from the first teacher only
                 label = f"s{seed}" if kind == "offline" else f"s{seed} @{int(m.group(3))}"
                 groups.setdefault(model, {})[label] = json.loads(path.read_text())
         if kind == "offline":
@@ -67,7 +76,7 @@ def table(results: Path, condition: str = "") -> str:
                 rows.append((f"{LABEL[model]}, trained {kind} ({seeds})", groups[model]))
     lines = ["| ball positions from | Simple | Middle | Hard |", "| --- | --- | --- | --- |"]
     lines += [f"| {name} | " + " | ".join(cells(recs)) + " |" for name, recs in rows]
-    cross = sorted(results.glob(f"{pre}swap_*_policy__*_perception.json"))
+    cross = [] if tt else sorted(results.glob(f"{pre}swap_*_policy__*_perception.json"))  # first teacher's
     if cross:
         lines += ["", "| policy trained with | perception from | Simple | Middle | Hard |", "| --- | --- | --- | --- | --- |"]
         for path in cross:
@@ -89,8 +98,10 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="also write the table here")
     parser.add_argument("--condition", default="", help="the evaluations under an env change, e.g. otherhand_x1 "
                         "(results/otherhand_x1_swap_..., written by experiments/other_hand.sh)")
+    parser.add_argument("--teacher", default="", help="the perceptions of a retrained teacher, e.g. t2 "
+                        "(results/..._swap_gt__gthard_sK_MODEL_t2_pi.json, written by experiments/other_hand.sh)")
     args = parser.parse_args()
-    text = table(args.results, args.condition)
+    text = table(args.results, args.condition, args.teacher)
     print(text)
     if args.out:
         args.out.write_text(text)

@@ -149,3 +149,21 @@ def test_a_condition_reads_only_its_own_evaluations(report, tmp_path):
     row = next(line for line in out.read_text().splitlines() if line.startswith("| MLP, warm-up"))
     assert "**40.0**" in row and "**90.0**" not in row
     assert "otherhand_x1" in out.read_text().splitlines()[0]
+
+
+def test_perception_swap_report_keeps_a_retrained_teachers_perceptions_apart(experiment_script, tmp_path):
+    swap = experiment_script("perception_swap_report")
+    _write(tmp_path / "otherhand_x1_gt_hard_s0_model_002000.json", (0.88, 0.9, 0.8))
+    _write(tmp_path / "otherhand_x1_gt_t2_hard_s0_model_002000.json", (0.36, 0.31, 0.3))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s0_tacgnn_pi.json", (0.4, 0.3, 0.2))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s1_tacgnn_t2_pi.json", (0.17, 0.17, 0.17))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s2_gcn_t2_pi.json", (0.13, 0.13, 0.13))
+    _write(tmp_path / "otherhand_x1_swap_tacgnn_s1_policy__cnn_s1_perception.json", (0.3, 0.2, 0.1))
+    first = swap.table(tmp_path, "otherhand_x1")
+    assert "| 40.0 [" in first and "| 17.0 [" not in first and "GCN" not in first  # the t2 files left out
+    second = swap.table(tmp_path, "otherhand_x1", "t2")
+    rows = {line.split(" | ")[0].strip("| "): line for line in second.splitlines()}
+    assert "| 36.0 [" in rows["true ball positions (the policy's own training input)"]
+    assert "| 17.0 [" in rows["TacGNN-32, trained offline (s1)"]
+    assert "| 13.0 [" in rows["GCN, trained offline (s2)"]
+    assert "| 40.0 [" not in second and "policy trained with" not in second  # the first teacher's left out
