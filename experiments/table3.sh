@@ -18,8 +18,8 @@
 #                   tagged _lr0.0001). LR=0.0003 is the recipe of sessions 2-6, whose runs carry no
 #                   tag: it breaks the starting policy in the first iterations (docs/results.md, 10)
 #   TEACHER_TAG=x   (environment) a name for the ground-truth teacher in runs/gt_hard_s$GT_SEED when it is
-#                   not the one earlier results came from (it was retrained: PPO on CPU does not repeat
-#                   bit for bit). Perception and blind runs are tagged _x and the teacher is evaluated as
+#                   not the one earlier results came from (retrained on another machine, the same commands
+#                   gave another policy: docs/results.md, 13). Perception and blind runs are tagged _x and the teacher is evaluated as
 #                   results/gt_x_hard_sK_..., so runs from different teachers never share a results file
 #
 # 1. a ground-truth policy: the Simple-task policy (runs/gt_s0) fine-tuned on Hard (runs/gt_hard_s$SEED)
