@@ -17,6 +17,23 @@ def _write(path, rates, steps=30.0, episodes=100):
                                 for t, r in zip(("simple", "middle", "hard"), rates)]))
 
 
+def _run_report(report, results, *options):
+    """Run table3_report.py's command line on `results`; the markdown it wrote."""
+    import sys
+    out = results / "t3.md"
+    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(results), "--out", str(out), *options]
+    try:
+        report.main()
+    finally:
+        sys.argv = argv
+    return out.read_text()
+
+
+def _rows(text):
+    """Table rows keyed by their first cell."""
+    return {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith("| ")}
+
+
 def test_seeds_pool_into_one_rate_with_a_wilson_interval(report, tmp_path):
     _write(tmp_path / "blind_gcn_hard_s0_model_000800.json", (0.9, 0.8, 0.5), steps=20.0)
     _write(tmp_path / "blind_gcn_hard_s1_model_000800.json", (0.7, 0.6, 0.3), steps=40.0)
@@ -30,38 +47,22 @@ def test_seeds_pool_into_one_rate_with_a_wilson_interval(report, tmp_path):
 
 
 def test_missing_rows_read_not_run(report, tmp_path):
-    out = tmp_path / "t3.md"
     _write(tmp_path / "blind_tacgnn_hard_s0_model_000800.json", (0.95, 0.9, 0.8))
-    import sys
-    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(tmp_path), "--out", str(out)]
-    try:
-        report.main()
-    finally:
-        sys.argv = argv
-    rows = {line.split(" | ")[0]: line for line in out.read_text().splitlines() if line.startswith("| ")}
+    rows = _rows(_run_report(report, tmp_path))
     assert "**95.0**" in rows["| TacGNN-32"] and "94.71 / 88.57 / 79.78" in rows["| TacGNN-32"]
     assert rows["| MLP"].count("not run") == 3
-
 
 
 def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     """Runs from another teacher (table3.sh's TEACHER_TAG) must neither pool with nor be compared to
     the runs of the first teacher, whose results files sit in the same folder."""
-    out = tmp_path / "t3.md"
     _write(tmp_path / "gt_hard_s0_model_002000.json", (0.98, 0.98, 0.96))
     _write(tmp_path / "gt_t2_hard_s0_model_002000.json", (0.5, 0.5, 0.5))
     _write(tmp_path / "blind_tacgnn_wu4_lr0.0001_hard_s1_model_000600.json", (0.1, 0.1, 0.1))
     _write(tmp_path / "blind_tacgnn_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.9, 0.8, 0.7))
     _write(tmp_path / "blind_gcn_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.6, 0.6, 0.6))
-    import sys
-    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(tmp_path), "--out", str(out),
-                                "--iterations", "600", "--teacher", "t2"]
-    try:
-        report.main()
-    finally:
-        sys.argv = argv
-    text = out.read_text()
-    rows = {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith("| ")}
+    text = _run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2")
+    rows = _rows(text)
     assert rows["| ground truth (teacher, Hard fine-tune)"].startswith("| ground truth (teacher, Hard fine-tune) | **50.0**")
     assert "(90.0); " in rows["| TacGNN-32, warm-up, learning rate 1e-4, teacher t2"]
     assert rows["| MLP, warm-up, learning rate 1e-4, teacher t2"].count("not run") == 3
@@ -70,14 +71,11 @@ def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     assert "TacGNN-32 + joint angles minus" not in text  # no such run: no such section
 
     _write(tmp_path / "blind_tacgnn_joints_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.95, 0.9, 0.9))
-    sys.argv = ["table3_report.py", "--results", str(tmp_path), "--out", str(out), "--iterations", "600", "--teacher", "t2"]
-    try:
-        report.main()
-    finally:
-        sys.argv = argv
-    joints = out.read_text().split("TacGNN-32 + joint angles minus")[1].splitlines()
+    text = _run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2")
+    joints = text.split("TacGNN-32 + joint angles minus")[1].splitlines()
     assert joints[2].startswith("| GCN | 1 / 1 | **+35.0** [")  # 95 - 60
     assert joints[3].startswith("| TacGNN-32 | 1 / 1 | **+5.0** [")  # 95 - 90
+
 
 def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
     """A run that never succeeds has NaN mean steps: it must not turn the pooled steps into NaN."""
@@ -136,19 +134,12 @@ def test_tacgnn_minus_each_baseline_with_a_seed_bootstrap_interval(report, tmp_p
 
 def test_a_condition_reads_only_its_own_evaluations(report, tmp_path):
     """--condition otherhand_x1 reports results/otherhand_x1_blind_..., not the nominal files."""
-    import sys
     _write(tmp_path / "blind_mlp_wu4_lr0.0001_hard_s0_model_000600.json", (0.9, 0.9, 0.9))
     _write(tmp_path / "otherhand_x1_blind_mlp_wu4_lr0.0001_hard_s0_model_000600.json", (0.4, 0.3, 0.2))
-    out = tmp_path / "t3.md"
-    argv, sys.argv = sys.argv, ["table3_report.py", "--results", str(tmp_path), "--out", str(out),
-                                "--iterations", "600", "--condition", "otherhand_x1"]
-    try:
-        report.main()
-    finally:
-        sys.argv = argv
-    row = next(line for line in out.read_text().splitlines() if line.startswith("| MLP, warm-up"))
+    text = _run_report(report, tmp_path, "--iterations", "600", "--condition", "otherhand_x1")
+    row = next(line for line in text.splitlines() if line.startswith("| MLP, warm-up"))
     assert "**40.0**" in row and "**90.0**" not in row
-    assert "otherhand_x1" in out.read_text().splitlines()[0]
+    assert "otherhand_x1" in text.splitlines()[0]
 
 
 def test_perception_swap_report_keeps_a_retrained_teachers_perceptions_apart(experiment_script, tmp_path):
