@@ -22,7 +22,7 @@ cd "$(dirname "$0")/.."
 ITERS=${1:-600}
 K=${2:-1}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # last, other_hand
+source experiments/lib.sh  # last, results_label, other_hand
 SET=$(other_hand $K)
 TT=${TEACHER_TAG:+_$TEACHER_TAG}
 GT=runs/gt_hard_s0/model_002000.pt
@@ -34,8 +34,7 @@ for model in tacgnn tacgnn_joints cnn mlp gcn; do
 done
 for entry in "${runs[@]}"; do
   run=${entry%:*}; n=${entry#*:}
-  out=results/otherhand_x${K}_$(basename $run)_model_$(printf %06d $n).json
-  [ "$run" = runs/gt_hard_s0 ] && out=${out/gt_hard/gt${TT}_hard}
+  out=results/otherhand_x${K}_$(results_label $run)_model_$(printf %06d $n).json
   [ -f $out ] || $T evaluate "$(last $run $n)" --task all --episodes 256 --envs 128 --out $out --set $SET
 done
 for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,mlp}${TT}_pi; do

@@ -47,7 +47,7 @@ TAG=$MODEL$JOINTS$( [ "$WARMUP" != 0 ] && echo "_wu$WARMUP" || true )$( [ "$LR" 
 T=.venv/bin/tacgnn
 GT_SEED=${GT_SEED:-$SEED}
 GT=runs/gt_hard_s$GT_SEED
-source experiments/lib.sh  # resume, last, offline_perception
+source experiments/lib.sh  # resume, last, results_label, offline_perception
 
 GT_SIMPLE=runs/gt_s0
 GT_SIMPLE_ITERS=${GT_SIMPLE_ITERS:-2500}
@@ -72,7 +72,6 @@ if [ ! -f "$(last $RUN $ITERS)" ]; then
     update_every_steps=400 warmup_rounds=$WARMUP
 fi
 for ckpt in "$(last $GT 2000)" "$(last $RUN $ITERS)"; do
-  out=results/$(basename $(dirname $ckpt))_$(basename $ckpt .pt).json
-  [ "$ckpt" = "$(last $GT 2000)" ] && out=${out/gt_hard/gt${TT}_hard}
+  out=results/$(results_label $(dirname $ckpt))_$(basename $ckpt .pt).json
   [ -f $out ] || $T evaluate $ckpt --task all --episodes 512 --envs 128 --out $out
 done

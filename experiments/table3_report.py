@@ -163,14 +163,14 @@ def main() -> None:
               "0 means TacGNN-32 is ahead beyond what the seeds and episodes measured can explain; with "
               "two or three seeds per model it understates the spread between seeds.", "",
               "| TacGNN-32 minus | seeds (TacGNN / baseline) | Simple | Middle | Hard |", "|---|---|---|---|---|"]
-    for key, label in baselines:
-        other = collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations)
+    others = {label: collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations) for key, label in baselines}
+    for label, other in others.items():
         lines.append(f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |")
     # the GCN reads every taxel's current position, that is the hand's pose (docs/results.md, section 12):
     # TacGNN given the pose as joint angles, against it
     with_joints = collect(results, f"{pre}blind_tacgnn_joints_wu4_lr0.0001{tt}_hard", args.iterations)
     if with_joints:
-        gcn = collect(results, f"{pre}blind_gcn_wu4_lr0.0001{tt}_hard", args.iterations)
+        gcn = others["GCN"]
         lines += ["", "| TacGNN-32 + joint angles minus | seeds | Simple | Middle | Hard |", "|---|---|---|---|---|",
                   f"| GCN | {len(with_joints)} / {len(gcn)} | " + " | ".join(difference_cells(with_joints, gcn)) + " |",
                   f"| TacGNN-32 | {len(with_joints)} / {len(ours)} | "
