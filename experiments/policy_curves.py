@@ -7,7 +7,8 @@ Reads each run's TensorBoard scalars (`Episode/success_rate`, logged by rsl_rl e
 iteration from the episodes that ended in it) and the run's config for the env steps per
 iteration (num_envs x num_steps_per_env). Several event files in one run (a resumed run)
 are merged, later files winning. Also prints, per run, the env steps and wall-clock time
-at which the smoothed success rate first reached 50 % and 90 %, and its final value.
+at which the smoothed success rate first reached 50 % and 90 %, its final value, and the in-loop
+perception's ball-position error at its last update (cm, on frames it had not trained on yet).
 Several runs in one item (seeds, comma-separated) draw their mean over the iterations all of
 them logged, with a band from the lowest to the highest seed (each smoothed); the columns
 then read the mean curve, and the wall clock is the slowest seed's.
@@ -22,8 +23,9 @@ import numpy as np
 import yaml
 
 
-def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(iterations, success rates, wall-clock seconds since the first event) of a run."""
+def scalar_points(run_dir: Path, tag: str) -> dict[int, tuple[float, float]]:
+    """Iteration -> (value, wall time) of one TensorBoard scalar of a run, its event files merged,
+    later files winning (a resumed run)."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     points: dict[int, tuple[float, float]] = {}
@@ -33,9 +35,15 @@ def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for f in files:
         acc = EventAccumulator(str(f), size_guidance={"scalars": 0})
         acc.Reload()
-        if "Episode/success_rate" in acc.Tags()["scalars"]:
-            for e in acc.Scalars("Episode/success_rate"):
+        if tag in acc.Tags()["scalars"]:
+            for e in acc.Scalars(tag):
                 points[e.step] = (e.value, e.wall_time)
+    return points
+
+
+def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(iterations, success rates, wall-clock seconds since the first event) of a run."""
+    points = scalar_points(run_dir, "Episode/success_rate")
     steps = np.array(sorted(points))
     values = np.array([points[s][0] for s in steps])
     wall = np.array([points[s][1] for s in steps])
@@ -43,6 +51,14 @@ def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     gaps = np.diff(wall, prepend=wall[0])
     gaps[gaps > 60] = np.median(gaps[gaps <= 60]) if (gaps <= 60).any() else 0.0
     return steps, values, np.cumsum(gaps)
+
+
+def final_perception_error(run_dir: Path) -> float | None:
+    """The in-loop perception's ball-position error (cm) at its last update, measured on the
+    newest frames before it trained on them (`perception/rmse_cm_before`): None for a run
+    without perception in the loop."""
+    points = scalar_points(run_dir, "perception/rmse_cm_before")
+    return points[max(points)][0] if points else None
 
 
 def steps_per_iteration(run_dir: Path) -> int:
@@ -84,7 +100,7 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    print(f"{'run':22s} {'iters':>6s} {'50% at (M steps, min)':>22s} {'90% at (M steps, min)':>22s} {'final':>6s}")
+    print(f"{'run':22s} {'iters':>6s} {'50% at (M steps, min)':>22s} {'90% at (M steps, min)':>22s} {'final':>6s} {'perception cm':>14s}")
     for item in args.runs:
         label, _, paths = item.partition("=")
         if not paths:
@@ -105,7 +121,10 @@ def main() -> None:
         for level in (0.5, 0.9):
             hit = np.flatnonzero(s >= level)
             cells.append(f"{env_steps[hit[0]]:8.2f} M, {wall[hit[0]] / 60:6.1f} min" if len(hit) else "never")
-        print(f"{label:22s} {it[-1]:6d} {cells[0]:>22s} {cells[1]:>22s} {100 * s[-1]:5.1f}%")
+        errors = [e for e in map(final_perception_error, runs) if e is not None]
+        error = f"{np.mean(errors):.3f}" + (f" ({' / '.join(f'{e:.2f}' for e in errors)})" if len(errors) > 1 else "") \
+            if errors else "-"
+        print(f"{label:22s} {it[-1]:6d} {cells[0]:>22s} {cells[1]:>22s} {100 * s[-1]:5.1f}% {error:>14s}")
     ax.set_xlabel("env steps (millions)")
     ax.set_ylabel(f"training success rate (%), {args.smooth}-iteration mean")
     ax.set_ylim(0, 100)

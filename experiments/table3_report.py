@@ -112,6 +112,8 @@ def difference_cells(ours: dict, other: dict) -> list[str]:
 # the comparison section: TacGNN's row against each baseline of the same recipe
 COMPARE = ("tacgnn_wu4_lr0.0001", [("mlp_wu4_lr0.0001", "MLP"), ("cnn_wu4_lr0.0001", "CNN"),
                                    ("gcn_wu4_lr0.0001", "GCN")])
+# compared only where it ran (from teacher t2): the GCN without the hand's pose in its node features
+COMPARE_IF_RUN = [("gcn_rest_wu4_lr0.0001", "GCN on rest positions")]
 
 
 def main() -> None:
@@ -164,6 +166,9 @@ def main() -> None:
               "two or three seeds per model it understates the spread between seeds.", "",
               "| TacGNN-32 minus | seeds (TacGNN / baseline) | Simple | Middle | Hard |", "|---|---|---|---|---|"]
     others = {label: collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations) for key, label in baselines}
+    for key, label in COMPARE_IF_RUN:
+        if found := collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations):
+            others[label] = found
     for label, other in others.items():
         lines.append(f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |")
     # the GCN reads every taxel's current position, that is the hand's pose (docs/results.md, section 12):

@@ -20,6 +20,17 @@ def test_a_resumed_run_merges_its_event_files(curves, tmp_path):
     it, values, _ = curves.success_curve(tmp_path)
     assert it.tolist() == list(range(10))
     assert np.allclose(values, [0.1] * 4 + [0.5] * 6)
+    assert curves.final_perception_error(tmp_path) is None  # a run without perception in the loop
+
+
+def test_the_perception_error_is_read_at_the_last_update(curves, tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    writer = SummaryWriter(str(tmp_path))
+    for step, value in ((8, 0.9), (24, 0.7), (16, 0.8)):  # written out of order: the last iteration counts
+        writer.add_scalar("perception/rmse_cm_before", value, step)
+    writer.close()
+    assert curves.final_perception_error(tmp_path) == pytest.approx(0.7)
 
 
 def test_seeds_average_over_the_iterations_all_of_them_logged(curves):

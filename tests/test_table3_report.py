@@ -75,6 +75,11 @@ def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     joints = text.split("TacGNN-32 + joint angles minus")[1].splitlines()
     assert joints[2].startswith("| GCN | 1 / 1 | **+35.0** [")  # 95 - 60
     assert joints[3].startswith("| TacGNN-32 | 1 / 1 | **+5.0** [")  # 95 - 90
+    assert "| GCN on rest positions" not in _rows(text)  # not run: no comparison row
+
+    _write(tmp_path / "blind_gcn_rest_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.4, 0.4, 0.4))
+    rows = _rows(_run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2"))
+    assert rows["| GCN on rest positions"].startswith("| GCN on rest positions | 1 / 1 | **+50.0** [")  # 90 - 40
 
 
 def test_a_seed_without_successes_adds_no_steps(report, tmp_path):

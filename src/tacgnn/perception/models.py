@@ -60,8 +60,10 @@ FORCE_FEATURES = ("raw", "log")
 #: as TacGNN's log force does; experiments/perception_inputs.sh).
 READING_FEATURES = ("raw", "log1p")
 READING_LOG_SCALE = 0.01  # N: log1p's knee; readings well above it are compressed like a log
-#: GCN node positions: each taxel's current position ("current", the paper's; it carries the whole
-#: hand's pose), or its fixed rest position ("rest": the nodes' inputs then vary with the forces only).
+#: GCN node positions: each taxel's current position ("current", our default; it carries the whole
+#: hand's pose), or its fixed rest position ("rest": the nodes' inputs then vary with the forces only,
+#: a GCN blind to the hand's pose as the paper describes it, sec. V-A and VI). facts.md gives the
+#: node features as [force, xyz] without saying which xyz; docs/results.md, section 14, compares both.
 GCN_NODE_POSITIONS = ("current", "rest")
 #: TacGNN readout input: global max pool of the last layer ("last", the paper), or of every
 #: layer: concatenated ("all", L x C wide), concatenated and mapped to C by a linear layer
