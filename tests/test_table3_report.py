@@ -34,6 +34,11 @@ def _rows(text):
     return {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith("| ")}
 
 
+def _swap_rows(text):
+    """perception_swap_report's rows keyed by their first cell, without the leading "| "."""
+    return {line.split(" | ")[0].strip("| "): line for line in text.splitlines()}
+
+
 def test_seeds_pool_into_one_rate_with_a_wilson_interval(report, tmp_path):
     _write(tmp_path / "blind_gcn_hard_s0_model_000800.json", (0.9, 0.8, 0.5), steps=20.0)
     _write(tmp_path / "blind_gcn_hard_s1_model_000800.json", (0.7, 0.6, 0.3), steps=40.0)
@@ -102,7 +107,7 @@ def test_perception_swap_report_pools_seeds_of_one_perception(experiment_script,
     _write(tmp_path / "swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json", (0.9, 0.9, 0.9))
     _write(tmp_path / "swap_tacgnn_s1_policy__cnn_s1_perception.json", (0.3, 0.2, 0.1))
     text = swap.table(tmp_path)
-    rows = {line.split(" | ")[0].strip("| "): line for line in text.splitlines()}
+    rows = _swap_rows(text)
     lo, hi = wilson_interval(140, 200)
     assert f"70.0 [{100 * lo:.1f}-{100 * hi:.1f}] (80.0 / 60.0)" in rows["TacGNN-32, trained offline (s0, s1)"]
     assert "| 50.0 [" in rows["CNN, trained offline (s0)"]
@@ -117,7 +122,7 @@ def test_perception_swap_report_pools_seeds_of_one_perception(experiment_script,
     # under an env change: only that change's files, the nominal ones left out
     _write(tmp_path / "otherhand_x1_gt_hard_s0_model_002000.json", (0.88, 0.9, 0.8))
     _write(tmp_path / "otherhand_x1_swap_gt__gthard_s0_tacgnn_pi.json", (0.4, 0.3, 0.2))
-    rows = {line.split(" | ")[0].strip("| "): line for line in swap.table(tmp_path, "otherhand_x1").splitlines()}
+    rows = _swap_rows(swap.table(tmp_path, "otherhand_x1"))
     assert "| 40.0 [" in rows["TacGNN-32, trained offline (s0)"] and "| 88.0 [" in rows[
         "true ball positions (the policy's own training input)"]
     assert not any(name.startswith(("CNN", "tacgnn_s1")) for name in rows)
@@ -158,7 +163,7 @@ def test_perception_swap_report_keeps_a_retrained_teachers_perceptions_apart(exp
     first = swap.table(tmp_path, "otherhand_x1")
     assert "| 40.0 [" in first and "| 17.0 [" not in first and "GCN" not in first  # the t2 files left out
     second = swap.table(tmp_path, "otherhand_x1", "t2")
-    rows = {line.split(" | ")[0].strip("| "): line for line in second.splitlines()}
+    rows = _swap_rows(second)
     assert "| 36.0 [" in rows["true ball positions (the policy's own training input)"]
     assert "| 17.0 [" in rows["TacGNN-32, trained offline (s1)"]
     assert "| 13.0 [" in rows["GCN, trained offline (s2)"]
