@@ -8,7 +8,8 @@ iteration from the episodes that ended in it) and the run's config for the env s
 iteration (num_envs x num_steps_per_env). Several event files in one run (a resumed run)
 are merged, later files winning. Also prints, per run, the env steps and wall-clock time
 at which the smoothed success rate first reached 50 % and 90 %, its final value, and the in-loop
-perception's ball-position error at its last update (cm, on frames it had not trained on yet).
+perception's ball-position error at its last update (cm, on frames it had not trained on yet;
+for seeds run to different lengths, the last update within the iterations the curve shows).
 Several runs in one item (seeds, comma-separated) draw their mean over the iterations all of
 them logged, with a band from the lowest to the highest seed (each smoothed); the columns
 then read the mean curve, and the wall clock is the slowest seed's.
@@ -23,27 +24,31 @@ import numpy as np
 import yaml
 
 
-def scalar_points(run_dir: Path, tag: str) -> dict[int, tuple[float, float]]:
-    """Iteration -> (value, wall time) of one TensorBoard scalar of a run, its event files merged,
-    later files winning (a resumed run)."""
+Scalars = dict[str, dict[int, tuple[float, float]]]
+
+
+def run_scalars(run_dir: Path) -> Scalars:
+    """Tag -> iteration -> (value, wall time) of every TensorBoard scalar of a run, its event files
+    merged, later files winning (a resumed run). Each file is parsed once, for all tags."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    points: dict[int, tuple[float, float]] = {}
+    scalars: Scalars = {}
     files = sorted(run_dir.glob("events.out.tfevents.*"), key=lambda p: p.stat().st_mtime)
     if not files:
         raise FileNotFoundError(f"{run_dir}: no TensorBoard event files")
     for f in files:
         acc = EventAccumulator(str(f), size_guidance={"scalars": 0})
         acc.Reload()
-        if tag in acc.Tags()["scalars"]:
+        for tag in acc.Tags()["scalars"]:
+            points = scalars.setdefault(tag, {})
             for e in acc.Scalars(tag):
                 points[e.step] = (e.value, e.wall_time)
-    return points
+    return scalars
 
 
-def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(iterations, success rates, wall-clock seconds since the first event) of a run."""
-    points = scalar_points(run_dir, "Episode/success_rate")
+def success_curve(scalars: Scalars) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(iterations, success rates, wall-clock seconds since the first event) of a run's scalars."""
+    points = scalars.get("Episode/success_rate", {})
     steps = np.array(sorted(points))
     values = np.array([points[s][0] for s in steps])
     wall = np.array([points[s][1] for s in steps])
@@ -53,12 +58,25 @@ def success_curve(run_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return steps, values, np.cumsum(gaps)
 
 
-def final_perception_error(run_dir: Path) -> float | None:
+def final_perception_error(scalars: Scalars, last_iteration: int | None = None) -> float | None:
     """The in-loop perception's ball-position error (cm) at its last update, measured on the
     newest frames before it trained on them (`perception/rmse_cm_before`): None for a run
-    without perception in the loop."""
-    points = scalar_points(run_dir, "perception/rmse_cm_before")
-    return points[max(points)][0] if points else None
+    without perception in the loop. With `last_iteration`, the last update once that iteration
+    was done (an update is logged at the count of iterations done: 600 after iteration 599), so
+    that seeds run for different lengths are read where their curves are compared."""
+    points = scalars.get("perception/rmse_cm_before", {})
+    steps = [s for s in points if last_iteration is None or s <= last_iteration + 1]
+    return points[max(steps)][0] if steps else None
+
+
+def error_cell(errors: list[float]) -> str:
+    """The seeds' mean perception error, and each seed's when there are several; "-" for none."""
+    if not errors:
+        return "-"
+    cell = f"{np.mean(errors):.3f}"
+    if len(errors) > 1:
+        cell += " (" + " / ".join(f"{e:.2f}" for e in errors) + ")"
+    return cell
 
 
 def steps_per_iteration(run_dir: Path) -> int:
@@ -109,7 +127,8 @@ def main() -> None:
         per_iteration = {steps_per_iteration(run) for run in runs}
         if len(per_iteration) > 1:
             raise SystemExit(f"{label}: the runs differ in env steps per iteration {sorted(per_iteration)}")
-        it, values, wall = common_iterations([success_curve(run) for run in runs])
+        scalars = [run_scalars(run) for run in runs]
+        it, values, wall = common_iterations([success_curve(sc) for sc in scalars])
         env_steps = it * per_iteration.pop() / 1e6
         each = np.stack([smooth(v, args.smooth) for v in values])
         s = each.mean(axis=0)
@@ -121,9 +140,8 @@ def main() -> None:
         for level in (0.5, 0.9):
             hit = np.flatnonzero(s >= level)
             cells.append(f"{env_steps[hit[0]]:8.2f} M, {wall[hit[0]] / 60:6.1f} min" if len(hit) else "never")
-        errors = [e for e in map(final_perception_error, runs) if e is not None]
-        error = f"{np.mean(errors):.3f}" + (f" ({' / '.join(f'{e:.2f}' for e in errors)})" if len(errors) > 1 else "") \
-            if errors else "-"
+        errors = [final_perception_error(sc, last_iteration=int(it[-1])) for sc in scalars]
+        error = error_cell([e for e in errors if e is not None])
         print(f"{label:22s} {it[-1]:6d} {cells[0]:>22s} {cells[1]:>22s} {100 * s[-1]:5.1f}% {error:>14s}")
     ax.set_xlabel("env steps (millions)")
     ax.set_ylabel(f"training success rate (%), {args.smooth}-iteration mean")

@@ -17,10 +17,11 @@ def test_a_resumed_run_merges_its_event_files(curves, tmp_path):
         for step in range(first, last):
             writer.add_scalar("Episode/success_rate", value, step)
         writer.close()
-    it, values, _ = curves.success_curve(tmp_path)
+    scalars = curves.run_scalars(tmp_path)
+    it, values, _ = curves.success_curve(scalars)
     assert it.tolist() == list(range(10))
     assert np.allclose(values, [0.1] * 4 + [0.5] * 6)
-    assert curves.final_perception_error(tmp_path) is None  # a run without perception in the loop
+    assert curves.final_perception_error(scalars) is None  # a run without perception in the loop
 
 
 def test_the_perception_error_is_read_at_the_last_update(curves, tmp_path):
@@ -30,7 +31,11 @@ def test_the_perception_error_is_read_at_the_last_update(curves, tmp_path):
     for step, value in ((8, 0.9), (24, 0.7), (16, 0.8)):  # written out of order: the last iteration counts
         writer.add_scalar("perception/rmse_cm_before", value, step)
     writer.close()
-    assert curves.final_perception_error(tmp_path) == pytest.approx(0.7)
+    scalars = curves.run_scalars(tmp_path)
+    assert curves.final_perception_error(scalars) == pytest.approx(0.7)
+    # a seed run longer than the others is read where the shared curve ends: after iteration 15
+    assert curves.final_perception_error(scalars, last_iteration=15) == pytest.approx(0.8)
+    assert curves.final_perception_error(scalars, last_iteration=6) is None  # no update yet
 
 
 def test_seeds_average_over_the_iterations_all_of_them_logged(curves):
