@@ -116,6 +116,15 @@ COMPARE = ("tacgnn_wu4_lr0.0001", [("mlp_wu4_lr0.0001", "MLP"), ("cnn_wu4_lr0.00
 COMPARE_IF_RUN = [("gcn_rest_wu4_lr0.0001", "GCN on rest positions")]
 
 
+def report_command(args: argparse.Namespace) -> str:
+    """The command that remakes this page: every option that chose what it reports."""
+    command = f".venv/bin/python experiments/table3_report.py --iterations {args.iterations}"
+    for option in ("condition", "teacher"):
+        if value := getattr(args, option):
+            command += f" --{option} {value}"
+    return command
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--iterations", type=int, default=800, help="PPO iterations of the blind runs to report")
@@ -141,7 +150,7 @@ def main() -> None:
              f"Made by `experiments/table3.sh MODEL SEED {args.iterations}` per row and seed (for a "
              f"checkpoint inside a longer run: `tacgnn evaluate RUN/model_{args.iterations:06d}.pt --task all "
              "--episodes 512 --envs 128 --out results/RUN_model_NNNNNN.json`), then "
-             f"`.venv/bin/python experiments/table3_report.py --iterations {args.iterations}`. "
+             f"`{report_command(args)}`. "
              "Rows not marked \"learning rate 1e-4\" ran at the blind stage's old learning rate "
              "(sessions 2-6): prefix `LR=0.0003` to remake them, and `WARMUP=4 GT_SEED=0` for the "
              "warm-up rows. "

@@ -74,6 +74,8 @@ def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     assert "| TacGNN-32, warm-up, PPO learning rate 1e-4 (session 7)" not in rows  # the first teacher's rows
     assert rows["| GCN"].startswith("| GCN | 1 / 1 | **+30.0** [")  # 90 - 60 on Simple, t2 runs only
     assert "TacGNN-32 + joint angles minus" not in text  # no such run: no such section
+    # the page names the command that remakes it, teacher included
+    assert "`.venv/bin/python experiments/table3_report.py --iterations 600 --teacher t2`" in text
 
     _write(tmp_path / "blind_tacgnn_joints_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.95, 0.9, 0.9))
     text = _run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2")
@@ -150,6 +152,7 @@ def test_a_condition_reads_only_its_own_evaluations(report, tmp_path):
     row = next(line for line in text.splitlines() if line.startswith("| MLP, warm-up"))
     assert "**40.0**" in row and "**90.0**" not in row
     assert "otherhand_x1" in text.splitlines()[0]
+    assert "experiments/table3_report.py --iterations 600 --condition otherhand_x1`" in text
 
 
 def test_perception_swap_report_keeps_a_retrained_teachers_perceptions_apart(experiment_script, tmp_path):
