@@ -27,7 +27,7 @@ SET=$(other_hand $K)
 TT=${TEACHER_TAG:+_$TEACHER_TAG}
 GT=runs/gt_hard_s0/model_002000.pt
 runs=(runs/gt_hard_s0:2000)
-for model in tacgnn tacgnn_joints cnn mlp gcn; do
+for model in tacgnn tacgnn_joints cnn mlp gcn gcn_rest; do
   for run in runs/blind_${model}_wu4_lr0.0001${TT}_hard_s*; do
     [ -f "$(last $run $ITERS)" ] && runs+=("$run:$ITERS")
   done
@@ -37,7 +37,7 @@ for entry in "${runs[@]}"; do
   out=results/otherhand_x${K}_$(results_label $run)_model_$(printf %06d $n).json
   [ -f $out ] || $T evaluate "$(last $run $n)" --task all --episodes 256 --envs 128 --out $out --set $SET
 done
-for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,mlp}${TT}_pi; do
+for p in runs/perc/gthard_s?_{tacgnn,cnn,gcn,gcn_rest,mlp}${TT}_pi; do
   out=results/otherhand_x${K}_swap_gt__$(basename $p).json
   if [ -f $p/checkpoint.pt ] && [ ! -f $out ]; then
     $T evaluate $GT --perception $p/checkpoint.pt --task all --episodes 256 --envs 128 --out $out --set $SET

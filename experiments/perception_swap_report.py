@@ -22,14 +22,33 @@ from tacgnn.learning.evaluate import wilson_interval
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("simple", "middle", "hard")
-MODELS = ("tacgnn", "tacgnnraw", "cnn", "gcn", "gcnrest", "mlp", "mlplog")
+MODELS = ("tacgnn", "tacgnnjoints", "tacgnnraw", "cnn", "gcn", "gcnrest", "mlp", "mlplog")
 # experiments/perception_inputs.sh: TacGNN-32 reading the raw force instead of its log, the MLP log1p of it,
 # the GCN on the taxels' rest positions instead of their current ones
 LABEL = {"tacgnn": "TacGNN-32", "tacgnnraw": "TacGNN-32 with raw force", "cnn": "CNN", "gcn": "GCN",
-         "gcnrest": "GCN on rest positions", "mlp": "MLP", "mlplog": "MLP with log force"}
+         "gcnrest": "GCN on rest positions", "mlp": "MLP", "mlplog": "MLP with log force",
+         "tacgnnjoints": "TacGNN-32 + joint angles"}
+# experiments/table3.sh names the same perceptions with its PSET_TAG (gthard_s0_gcn_rest_t2_pi)
+ALIASES = {"gcn_rest": "gcnrest", "tacgnn_joints": "tacgnnjoints"}
 # results/swap_gt__gthard_s0_cnn_pi.json, results/swap_gt__blind_cnn_wu4_lr0.0001_hard_s1_model_000600.json
 OFFLINE = re.compile(r"swap_gt__gthard_s(\d+)_(\w+?)_pi\.json")
 IN_LOOP = re.compile(r"swap_gt__blind_([a-z]+)_(?:wu\d+_)?(?:lr[\d.]+_)?hard_s(\d+)_model_(\d+)\.json")
+
+
+def offline_model(name: str, teacher_tag: str, file_name: str) -> str | None:
+    """The perception model of an offline perception's name (gthard_s1_<name>_pi), or None when it
+    belongs to another teacher than the one reported: "gcn_t2" is teacher t2's GCN, "gcn" the first
+    teacher's. A name that is no known model raises, so that no perception drops out of the table unseen."""
+    known = {**{m: m for m in MODELS}, **ALIASES}
+    if teacher_tag:
+        if not name.endswith(f"_{teacher_tag}"):
+            return None
+        name = name.removesuffix(f"_{teacher_tag}")
+    elif name not in known and any(name.startswith(f"{k}_") for k in known):
+        return None  # <model>_<tag>: a retrained teacher's
+    if name not in known:
+        raise ValueError(f"{file_name}: unknown perception model {name!r}; known: {', '.join(known)}")
+    return known[name]
 
 
 def cells(records_by_seed: dict[str, list[dict]]) -> list[str]:
@@ -60,10 +79,10 @@ def table(results: Path, condition: str = "", teacher_tag: str = "") -> str:
         for path in sorted(results.glob(f"{pre}swap_gt__*.json")):
             if m := pattern.fullmatch(path.name.removeprefix(pre)):
                 model, seed = (m.group(2), m.group(1)) if kind == "offline" else (m.group(1), m.group(2))
-                if kind == "offline":  # gthard_s1_gcn_t2_pi: a perception of teacher t2
-                    if tt and not model.endswith(tt):
+                if kind == "offline":
+                    model = offline_model(model, teacher_tag, path.name)
+                    if model is None:
                         continue
-                    model = model.removesuffix(tt)
                 elif tt:
                     continue  # the in-loop swaps ran from the first teacher only
                 label = f"s{seed}" if kind == "offline" else f"s{seed} @{int(m.group(3))}"

@@ -171,3 +171,22 @@ def test_perception_swap_report_keeps_a_retrained_teachers_perceptions_apart(exp
     assert "| 17.0 [" in rows["TacGNN-32, trained offline (s1)"]
     assert "| 13.0 [" in rows["GCN, trained offline (s2)"]
     assert "| 40.0 [" not in second and "policy trained with" not in second  # the first teacher's left out
+
+
+def test_perception_swap_report_names_table3_perceptions_and_rejects_unknown_ones(experiment_script, tmp_path):
+    """table3.sh names the GCN on rest positions gcn_rest (perception_inputs.sh: gcnrest): both are one row;
+    a perception the report does not know raises instead of dropping out of the table."""
+    swap = experiment_script("perception_swap_report")
+    _write(tmp_path / "otherhand_x1_gt_t2_hard_s0_model_002000.json", (0.36, 0.31, 0.3))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s0_gcn_rest_t2_pi.json", (0.21, 0.2, 0.2))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s1_tacgnn_joints_t2_pi.json", (0.5, 0.5, 0.5))
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s0_gcnrest_pi.json", (0.23, 0.2, 0.2))  # first teacher's
+    rows = _swap_rows(swap.table(tmp_path, "otherhand_x1", "t2"))
+    assert "| 21.0 [" in rows["GCN on rest positions, trained offline (s0)"]
+    assert "| 50.0 [" in rows["TacGNN-32 + joint angles, trained offline (s1)"]
+    first = _swap_rows(swap.table(tmp_path, "otherhand_x1"))  # t2's files left out, no error
+    assert "| 23.0 [" in first["GCN on rest positions, trained offline (s0)"]
+    assert not any("joint angles" in row for row in first)
+    _write(tmp_path / "otherhand_x1_swap_gt__gthard_s2_transformer_t2_pi.json", (0.5, 0.5, 0.5))
+    with pytest.raises(ValueError, match="unknown perception model 'transformer'"):
+        swap.table(tmp_path, "otherhand_x1", "t2")
