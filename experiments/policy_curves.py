@@ -1,7 +1,7 @@
 """Learning curves of PPO runs (the paper's Fig. 4B/4C): training success rate against env steps.
 
     .venv/bin/python experiments/policy_curves.py OUT.png LABEL=RUN_DIR[,RUN_DIR...] [...]
-        [--title T] [--smooth 25]
+        [--title T] [--smooth 25] [--iterations N]
 
 Reads each run's TensorBoard scalars (`Episode/success_rate`, logged by rsl_rl every
 iteration from the episodes that ended in it) and the run's config for the env steps per
@@ -84,9 +84,11 @@ def steps_per_iteration(run_dir: Path) -> int:
     return int(cfg["ppo"]["num_envs"]) * int(cfg["ppo"]["num_steps_per_env"])
 
 
-def common_iterations(curves: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
-    """(iterations, success rates [runs, iterations], slowest wall clock) on the iterations every run logged."""
-    common = curves[0][0]
+def common_iterations(curves: list[tuple[np.ndarray, np.ndarray, np.ndarray]], iterations: int | None = None):
+    """(iterations, success rates [runs, iterations], slowest wall clock) on the iterations every run logged;
+    with `iterations`, only the first that many (0 .. iterations - 1), so that runs trained longer than
+    others are compared at the same length."""
+    common = curves[0][0] if iterations is None else curves[0][0][curves[0][0] < iterations]
     for it, _, _ in curves[1:]:
         common = np.intersect1d(common, it)
     if len(common) == 0:
@@ -110,6 +112,8 @@ def main() -> None:
     parser.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     parser.add_argument("--title", default="Baoding training success")
     parser.add_argument("--smooth", type=int, default=25, help="moving-average window (iterations)")
+    parser.add_argument("--iterations", type=int, help="draw and read every run up to this many iterations "
+                        "(default: as far as all seeds of an item logged)")
     args = parser.parse_args()
 
     import matplotlib
@@ -128,7 +132,7 @@ def main() -> None:
         if len(per_iteration) > 1:
             raise SystemExit(f"{label}: the runs differ in env steps per iteration {sorted(per_iteration)}")
         scalars = [run_scalars(run) for run in runs]
-        it, values, wall = common_iterations([success_curve(sc) for sc in scalars])
+        it, values, wall = common_iterations([success_curve(sc) for sc in scalars], args.iterations)
         env_steps = it * per_iteration.pop() / 1e6
         each = np.stack([smooth(v, args.smooth) for v in values])
         s = each.mean(axis=0)

@@ -47,3 +47,6 @@ def test_seeds_average_over_the_iterations_all_of_them_logged(curves):
     assert wall.tolist() == [2.0, 3.0, 4.0, 6.0]  # the slower seed at each iteration
     with pytest.raises(ValueError, match="share no logged iteration"):
         curves.common_iterations([a, (np.arange(20, 22), np.zeros(2), np.zeros(2))])
+    # cut at a length: the iterations 0 .. N - 1 only, the perception error then read inside them
+    it, values, _ = curves.common_iterations([a, b], iterations=4)
+    assert it.tolist() == [2, 3] and values.shape == (2, 2)
