@@ -47,6 +47,10 @@ def teacher_rows(teacher: str) -> list[tuple[str, str, str]]:
             for model, label in RECIPE_MODELS]
     return rows + [(f"tacgnn_joints_wu4_lr0.0001_{teacher}", f"TacGNN-32 + joint angles, teacher {teacher} "
                     "(beyond the paper)", None),
+                   (f"mlp_joints_wu4_lr0.0001_{teacher}", f"MLP + joint angles, teacher {teacher} "
+                    "(beyond the paper)", None),
+                   (f"tacgnn_c64_wu4_lr0.0001_{teacher}", f"TacGNN-64, teacher {teacher} "
+                    "(`PSET_TAG=c64 ... model.channels=64`)", "tacgnn"),
                    (f"gcn_rest_wu4_lr0.0001_{teacher}", f"GCN on the taxels' rest positions, teacher {teacher} "
                     "(`PSET_TAG=rest ... model.gcn_node_positions=rest`)", "gcn")]
 
@@ -189,6 +193,10 @@ def main() -> None:
                   f"| GCN | {len(with_joints)} / {len(gcn)} | " + " | ".join(difference_cells(with_joints, gcn)) + " |",
                   f"| TacGNN-32 | {len(with_joints)} / {len(ours)} | "
                   + " | ".join(difference_cells(with_joints, ours)) + " |"]
+        # the same pose input given to the MLP: does TacGNN still lead when both read the joint angles?
+        if mlp_joints := collect(results, f"{pre}blind_mlp_joints_wu4_lr0.0001{tt}_hard", args.iterations):
+            lines.append(f"| MLP + joint angles | {len(with_joints)} / {len(mlp_joints)} | "
+                         + " | ".join(difference_cells(with_joints, mlp_joints)) + " |")
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)
     print(text)

@@ -82,7 +82,15 @@ def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     joints = text.split("TacGNN-32 + joint angles minus")[1].splitlines()
     assert joints[2].startswith("| GCN | 1 / 1 | **+35.0** [")  # 95 - 60
     assert joints[3].startswith("| TacGNN-32 | 1 / 1 | **+5.0** [")  # 95 - 90
+    assert "| MLP + joint angles |" not in text  # not run: no comparison row
     assert "| GCN on rest positions" not in _rows(text)  # not run: no comparison row
+
+    _write(tmp_path / "blind_mlp_joints_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.85, 0.9, 0.9))
+    text = _run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2")
+    assert "(85.0); " in _rows(text)["| MLP + joint angles, teacher t2 (beyond the paper)"]
+    assert _rows(text)["| TacGNN-64, teacher t2 (`PSET_TAG=c64 ... model.channels=64`)"].count("not run") == 3
+    joints = text.split("TacGNN-32 + joint angles minus")[1].splitlines()
+    assert joints[4].startswith("| MLP + joint angles | 1 / 1 | **+10.0** [")  # 95 - 85
 
     _write(tmp_path / "blind_gcn_rest_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.4, 0.4, 0.4))
     rows = _rows(_run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2"))
