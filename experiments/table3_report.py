@@ -197,6 +197,11 @@ def main() -> None:
         if mlp_joints := collect(results, f"{pre}blind_mlp_joints_wu4_lr0.0001{tt}_hard", args.iterations):
             lines.append(f"| MLP + joint angles | {len(with_joints)} / {len(mlp_joints)} | "
                          + " | ".join(difference_cells(with_joints, mlp_joints)) + " |")
+    # the wider TacGNN (64 channels, Table I's best) against the same baselines and the 32-channel one
+    if wide := collect(results, f"{pre}blind_tacgnn_c64_wu4_lr0.0001{tt}_hard", args.iterations):
+        lines += ["", "| TacGNN-64 minus | seeds | Simple | Middle | Hard |", "|---|---|---|---|---|"]
+        for label, other in {**others, "TacGNN-32": ours}.items():
+            lines.append(f"| {label} | {len(wide)} / {len(other)} | " + " | ".join(difference_cells(wide, other)) + " |")
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)
     print(text)

@@ -95,6 +95,15 @@ def test_a_retrained_teacher_reports_its_own_runs_alone(report, tmp_path):
     _write(tmp_path / "blind_gcn_rest_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.4, 0.4, 0.4))
     rows = _rows(_run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2"))
     assert rows["| GCN on rest positions"].startswith("| GCN on rest positions | 1 / 1 | **+50.0** [")  # 90 - 40
+    assert "TacGNN-64 minus" not in "\n".join(rows)  # no TacGNN-64 run: no such section
+
+    _write(tmp_path / "blind_tacgnn_c64_wu4_lr0.0001_t2_hard_s1_model_000600.json", (0.92, 0.9, 0.9))
+    text = _run_report(report, tmp_path, "--iterations", "600", "--teacher", "t2")
+    wide = text.split("TacGNN-64 minus")[1].splitlines()
+    assert wide[2].startswith("| MLP | 1 / 0 | not run")  # the MLP skin-only row never ran here
+    assert wide[4].startswith("| GCN | 1 / 1 | **+32.0** [")  # 92 - 60
+    assert wide[5].startswith("| GCN on rest positions | 1 / 1 | **+52.0** [")  # 92 - 40
+    assert wide[6].startswith("| TacGNN-32 | 1 / 1 | **+2.0** [")  # 92 - 90
 
 
 def test_a_seed_without_successes_adds_no_steps(report, tmp_path):
