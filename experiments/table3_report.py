@@ -113,6 +113,11 @@ def difference_cells(ours: dict, other: dict) -> list[str]:
     return cells
 
 
+def minus_row(label: str, ours: dict, other: dict) -> str:
+    """A markdown row of a "minus" table: the baseline, both seed counts, one difference per task."""
+    return f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |"
+
+
 # the comparison section: TacGNN's row against each baseline of the same recipe
 COMPARE = ("tacgnn_wu4_lr0.0001", [("mlp_wu4_lr0.0001", "MLP"), ("cnn_wu4_lr0.0001", "CNN"),
                                    ("gcn_wu4_lr0.0001", "GCN")])
@@ -183,25 +188,22 @@ def main() -> None:
         if found := collect(results, f"{pre}blind_{key}{tt}_hard", args.iterations):
             others[label] = found
     for label, other in others.items():
-        lines.append(f"| {label} | {len(ours)} / {len(other)} | " + " | ".join(difference_cells(ours, other)) + " |")
+        lines.append(minus_row(label, ours, other))
     # the GCN reads every taxel's current position, that is the hand's pose (docs/results.md, section 12):
     # TacGNN given the pose as joint angles, against it
     with_joints = collect(results, f"{pre}blind_tacgnn_joints_wu4_lr0.0001{tt}_hard", args.iterations)
     if with_joints:
         gcn = others["GCN"]
         lines += ["", "| TacGNN-32 + joint angles minus | seeds | Simple | Middle | Hard |", "|---|---|---|---|---|",
-                  f"| GCN | {len(with_joints)} / {len(gcn)} | " + " | ".join(difference_cells(with_joints, gcn)) + " |",
-                  f"| TacGNN-32 | {len(with_joints)} / {len(ours)} | "
-                  + " | ".join(difference_cells(with_joints, ours)) + " |"]
+                  minus_row("GCN", with_joints, gcn), minus_row("TacGNN-32", with_joints, ours)]
         # the same pose input given to the MLP: does TacGNN still lead when both read the joint angles?
         if mlp_joints := collect(results, f"{pre}blind_mlp_joints_wu4_lr0.0001{tt}_hard", args.iterations):
-            lines.append(f"| MLP + joint angles | {len(with_joints)} / {len(mlp_joints)} | "
-                         + " | ".join(difference_cells(with_joints, mlp_joints)) + " |")
+            lines.append(minus_row("MLP + joint angles", with_joints, mlp_joints))
     # the wider TacGNN (64 channels, Table I's best) against the same baselines and the 32-channel one
     if wide := collect(results, f"{pre}blind_tacgnn_c64_wu4_lr0.0001{tt}_hard", args.iterations):
         lines += ["", "| TacGNN-64 minus | seeds | Simple | Middle | Hard |", "|---|---|---|---|---|"]
         for label, other in {**others, "TacGNN-32": ours}.items():
-            lines.append(f"| {label} | {len(wide)} / {len(other)} | " + " | ".join(difference_cells(wide, other)) + " |")
+            lines.append(minus_row(label, wide, other))
     text = "\n".join(lines) + "\n"
     Path(args.out).write_text(text)
     print(text)
