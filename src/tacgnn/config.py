@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -22,13 +23,48 @@ T = TypeVar("T")
 
 
 class ConfigError(ValueError):
-    """A configuration key or value is wrong; the message names it."""
+    """A configuration key or value is wrong; the message names it.
+
+    `key` (dotted) and `detail` are kept when known, so that a config nested in another
+    can report the full key (``env.num_envs``, not ``num_envs``).
+    """
+
+    def __init__(self, message: str, key: str | None = None, detail: str | None = None):
+        super().__init__(message)
+        self.key, self.detail = key, detail
+
+
+def _key_error(key: str, detail: str) -> ConfigError:
+    return ConfigError(f"config key '{key}': {detail}", key=key, detail=detail)
 
 
 def check(condition: bool, key: str, message: str) -> None:
     """Raise `ConfigError` for `key` unless `condition` holds."""
     if not condition:
-        raise ConfigError(f"config key '{key}': {message}")
+        raise _key_error(key, message)
+
+
+# PyYAML follows YAML 1.1, where a float needs a dot: '1e-4' would load as a string. YAML 1.2
+# (and every user) reads it as a number.
+class _Loader(yaml.SafeLoader):
+    pass
+
+
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float",
+                              re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+                              list("-+0123456789"))
+
+
+def yaml_load(text: str) -> Any:
+    """Parse YAML as the configs expect it (``1e-4`` is a float); raises `yaml.YAMLError`."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+
+
+def _yaml_problem(err: yaml.YAMLError) -> str:
+    """The first line of a YAML error, without PyYAML's multi-line context."""
+    problem = getattr(err, "problem", None) or str(err).strip().splitlines()[0]
+    mark = getattr(err, "problem_mark", None)
+    return f"{problem} (column {mark.column + 1})" if mark is not None else problem
 
 
 def _coerce(value: Any, annotation: Any, key: str) -> Any:
@@ -65,8 +101,12 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
     if annotation is float:
         check(isinstance(value, (int, float)) and not isinstance(value, bool), key,
               f"expected a number, got {value!r}")
-        check(math.isfinite(value), key, f"must be finite, got {value!r}")
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:
+            number = math.inf
+        check(math.isfinite(number), key, f"must be finite, got {value!r}")
+        return number
     if annotation is int:
         check(isinstance(value, int) and not isinstance(value, bool), key,
               f"expected an integer, got {value!r}")
@@ -93,7 +133,36 @@ def from_dict(cls: type[T], data: Mapping[str, Any], prefix: str = "") -> T:
             hint = f" (did you mean '{prefix}{close[0]}'?)" if close else ""
             raise ConfigError(f"unknown config key '{prefix}{key}' for {cls.__name__}{hint}")
         kwargs[key] = _coerce(value, hints[key], f"{prefix}{key}")
-    return cls(**kwargs)
+    missing = [name for name, f in fields.items() if name not in kwargs
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise _key_error(prefix.rstrip(".") or cls.__name__, f"missing keys {missing}")
+    try:
+        return cls(**kwargs)
+    except ConfigError as err:
+        if err.key is None or not prefix:
+            raise
+        raise _key_error(_nested_key(prefix, err.key), err.detail or str(err)) from None
+    except (ValueError, TypeError, ArithmeticError) as err:
+        # configs that validate with plain exceptions (e.g. "channels must be a positive int")
+        word, _, rest = str(err).partition(" ")
+        field = re.split(r"[^A-Za-z0-9_]", word)[0]
+        if field in fields and rest:
+            raise _key_error(f"{prefix}{field}", rest if word == field else str(err)) from err
+        raise _key_error(prefix.rstrip(".") or cls.__name__, str(err)) from err
+
+
+def _nested_key(prefix: str, key: str) -> str:
+    """The full key of a nested config's `key`: 'env.' + 'num_envs' -> 'env.num_envs'.
+
+    Configs name some keys from their usual parent ('hand.stiffness'); those are joined
+    where the parent already appears ('grasp.hand.' + 'hand.stiffness' -> 'grasp.hand.stiffness').
+    """
+    parts, first = prefix.rstrip(".").split("."), key.split(".")[0]
+    for i in range(len(parts) - 1, -1, -1):
+        if parts[i] == first:
+            return ".".join(parts[:i] + [key])
+    return ".".join(parts + [key])
 
 
 def to_dict(config: Any) -> dict:
@@ -114,9 +183,18 @@ def load_yaml(cls: type[T], path: str | Path) -> T:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
-    with path.open() as fh:
-        data = yaml.safe_load(fh) or {}
-    return from_dict(cls, data)
+    try:
+        data = yaml_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise ConfigError(f"config file {path}: not valid YAML: {_yaml_problem(err)}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"config file {path}: cannot read it ({err})") from None
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"config file {path}: expected a mapping of config keys, got {type(data).__name__}")
+    try:
+        return from_dict(cls, data)
+    except ConfigError as err:
+        raise ConfigError(f"config file {path}: {err}", key=err.key, detail=err.detail) from None
 
 
 def override(config: T, updates: Mapping[str, Any]) -> T:
@@ -137,11 +215,17 @@ def override(config: T, updates: Mapping[str, Any]) -> T:
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:
-    """Parse command-line 'key=value' strings, values as YAML scalars."""
+    """Parse command-line 'key=value' strings, values as YAML (``1e-4`` a float, ``[1, 2]`` a list)."""
     out = {}
     for item in items:
         if "=" not in item:
             raise ConfigError(f"override '{item}' must look like key=value")
         key, raw = item.split("=", 1)
-        out[key.strip()] = yaml.safe_load(raw)
+        key = key.strip()
+        if not key:
+            raise ConfigError(f"override '{item}' has no key before '='")
+        try:
+            out[key] = yaml_load(raw)
+        except yaml.YAMLError as err:
+            raise _key_error(key, f"cannot parse the value {raw!r}: {_yaml_problem(err)}") from None
     return out
