@@ -17,6 +17,7 @@
 
 Every command takes ``--config FILE.yaml`` and ``--set key=value`` (dotted keys, e.g.
 ``--set task=middle sim.timestep=0.004``); unknown keys fail before anything runs.
+A wrong file, key or value is reported in one line (exit code 2); ``--debug`` shows the traceback.
 """
 
 from __future__ import annotations
@@ -236,7 +237,7 @@ def cmd_sysid(args) -> int:
 
     from tacgnn.envs.baoding import BAODING_RANGES
     from tacgnn.tools import sysid
-    from tacgnn.tools.joint_recording import RecordingError, load_recording, save_recording
+    from tacgnn.tools.joint_recording import load_recording, save_recording
 
     grid = sysid.SysIdGrid(tuple(args.stiffness), tuple(args.damping))
     cfg = sysid.SysIdConfig(grid=grid, refine_passes=args.refine_passes)
@@ -259,11 +260,7 @@ def cmd_sysid(args) -> int:
         return 0
     if not args.recording:
         raise ConfigError("sysid needs a recording file (or --make-recording PATH to make one in simulation)")
-    try:
-        rec = load_recording(args.recording)
-    except RecordingError as err:
-        print(f"tacgnn sysid: {err}", file=sys.stderr)
-        return 2
+    rec = load_recording(args.recording)
     start = time.perf_counter()
     result = sysid.identify(rec, cfg)
     print(f"{rec.source}: {rec.num_samples} samples, grid {len(grid.stiffness)} x {len(grid.damping)}, "
@@ -284,25 +281,21 @@ def cmd_calibrate_skin(args) -> int:
     from tacgnn.real.skin import (CalibrationError, SkinProcessor, calibrate, load_raw_frames,
                                   patch_gain_from_load)
 
-    try:
-        rest = load_raw_frames(args.rest)
-        calib = calibrate(rest, sigmas=args.sigmas, min_threshold=args.min_threshold, gain=args.gain)
-        if args.load:
-            if not (args.load_patch and args.load_newtons):
-                raise CalibrationError("--load needs --load-patch and --load-newtons")
-            calib = patch_gain_from_load(calib, load_raw_frames(args.load), args.load_patch, args.load_newtons)
-        processor = SkinProcessor(calib)
-        dead = np.flatnonzero(calib.dead)
-        print(f"{len(rest)} rest frames: mean threshold {calib.threshold.mean():.4g} raw units; "
-              f"{len(dead)} dead taxels (always 0){': ' + ', '.join(processor.describe(dead)) if len(dead) else ''}")
-        if args.contact:
-            quiet = processor.never_active(load_raw_frames(args.contact))
-            print(f"{len(quiet)} live taxels never active in {args.contact}"
-                  f"{': ' + ', '.join(processor.describe(quiet)) if len(quiet) else ''}")
-        calib.save(args.out)
-    except CalibrationError as err:
-        print(f"tacgnn calibrate-skin: {err}", file=sys.stderr)
-        return 2
+    rest = load_raw_frames(args.rest)
+    calib = calibrate(rest, sigmas=args.sigmas, min_threshold=args.min_threshold, gain=args.gain)
+    if args.load:
+        if not (args.load_patch and args.load_newtons):
+            raise CalibrationError("--load needs --load-patch and --load-newtons")
+        calib = patch_gain_from_load(calib, load_raw_frames(args.load), args.load_patch, args.load_newtons)
+    processor = SkinProcessor(calib)
+    dead = np.flatnonzero(calib.dead)
+    print(f"{len(rest)} rest frames: mean threshold {calib.threshold.mean():.4g} raw units; "
+          f"{len(dead)} dead taxels (always 0){': ' + ', '.join(processor.describe(dead)) if len(dead) else ''}")
+    if args.contact:
+        quiet = processor.never_active(load_raw_frames(args.contact))
+        print(f"{len(quiet)} live taxels never active in {args.contact}"
+              f"{': ' + ', '.join(processor.describe(quiet)) if len(quiet) else ''}")
+    calib.save(args.out)
     print(f"wrote {args.out}")
     return 0
 
@@ -347,9 +340,45 @@ def _real_hand_action(args, cfg) -> int:
     return 0
 
 
+def _fraction(text: str) -> float:
+    """argparse type: a number in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:  # NaN fails too
+        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1], got {text}")
+    return value
+
+
+def _count(minimum: int):
+    """argparse type: an integer >= `minimum`."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: the wrong argument and where to look, not the whole usage."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tacgnn", description=__doc__,
+    parser = _Parser(prog="tacgnn", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an error (taken anywhere in the arguments)")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def add(name: str, fn, help: str) -> argparse.ArgumentParser:
@@ -363,27 +392,27 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("demo", cmd_demo, "run the shipped Baoding policy (TacGNN perception) and write a video")
     p.add_argument("--policy", help=f"policy or checkpoint file (default: the shipped {SHIPPED_POLICY.name})")
     p.add_argument("--scripted", action="store_true", help="the scripted finger wave instead of a policy")
-    p.add_argument("--episodes", type=int, default=64)
-    p.add_argument("--envs", type=int, default=64)
-    p.add_argument("--steps", type=int, default=200, help="scripted: control steps")
+    p.add_argument("--episodes", type=_count(1), default=64)
+    p.add_argument("--envs", type=_count(1), default=64)
+    p.add_argument("--steps", type=_count(1), default=200, help="scripted: control steps")
     p.add_argument("--video", default="outputs/demo.mp4", help="'' to skip the video")
-    p.add_argument("--video-steps", type=int, default=100)
+    p.add_argument("--video-steps", type=_count(1), default=100)
     p = add("render", cmd_render, "write a video of one episode and a skin picture")
     p.add_argument("--out", default="outputs/episode.mp4")
-    p.add_argument("--steps", type=int, default=100)
+    p.add_argument("--steps", type=_count(1), default=100)
     p.add_argument("--skin-picture", default="outputs/skin.png")
     add("view", cmd_view, "interactive viewer (needs a display)")
     add("config", cmd_config, "print the default config as YAML")
     p = add("make-dataset", cmd_make_dataset, "generate a tactile dataset (resumes if interrupted)")
     p.add_argument("kind", choices=["baoding", "grasp"])
     p.add_argument("--out", required=True)
-    p.add_argument("--samples", type=int, default=25_000)
-    p.add_argument("--shard-size", type=int, default=5_000)
+    p.add_argument("--samples", type=_count(1), default=25_000)
+    p.add_argument("--shard-size", type=_count(1), default=5_000)
     p.add_argument("--object", choices=["cube", "cylinder", "meat_can"],
                    help="grasp: the object (default cube); --config/--set take GraspConfig keys for grasps, "
                         "e.g. --set can_face=narrow")
     p.add_argument("--policy", help="baoding: a ground-truth PPO checkpoint drives the balls")
-    p.add_argument("--settle-steps", type=int, default=5,
+    p.add_argument("--settle-steps", type=_count(0), default=5,
                    help="baoding: skip this many first steps of each episode (0 keeps the dropping balls)")
 
     p = sub.add_parser("train-perception", help="train a perception model on a dataset")
@@ -391,9 +420,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", choices=["tacgnn", "mlp", "cnn", "gcn"], default="tacgnn")
     p.add_argument("--dataset", required=True)
     p.add_argument("--run", required=True, help="run folder: checkpoint, history, TensorBoard")
-    p.add_argument("--epochs", type=int, default=10)
-    p.add_argument("--channels", type=int, default=0, help="TacGNN channels (16/32/64/128)")
-    p.add_argument("--max-samples", type=int, default=0)
+    p.add_argument("--epochs", type=_count(1), default=10)
+    p.add_argument("--channels", type=_count(0), default=0, help="TacGNN channels (16/32/64/128)")
+    p.add_argument("--max-samples", type=_count(0), default=0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="override training config keys")
@@ -408,7 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eval-perception", help="errors of a trained perception model")
     p.add_argument("--checkpoint", required=True)
     p.add_argument("--dataset", required=True)
-    p.add_argument("--dead", type=float, nargs="*", default=[0.0], help="fractions of dead taxels")
+    p.add_argument("--dead", type=_fraction, nargs="*", default=[0.0], help="fractions of dead taxels, in [0, 1]")
     p.add_argument("--whole", action="store_true", help="use the whole dataset, not its test split")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(fn=cmd_eval_perception)
@@ -455,26 +484,58 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--levels-deg", type=float, nargs="+", default=[0.0, 15.0, 30.0, 45.0, 60.0])
     p.add_argument("--hold-steps", type=int, default=50)
     p.add_argument("--together", action="store_true", help="record-steps: all joints at once (default: one by one)")
-    p.add_argument("--frames", type=int, default=500, help="record-skin: frames to save")
+    p.add_argument("--frames", type=_count(1), default=500, help="record-skin: frames to save")
     p.set_defaults(fn=cmd_real_hand)
     return parser
 
 
+# Errors that mean the user's input is wrong (a file, key or value), reported as one line with
+# exit code 2. Matched by class name so that the CLI need not import the modules that define
+# them (they load torch and MuJoCo); OSError covers missing, unreadable and unwritable files.
+USER_ERRORS = ("ConfigError", "DatasetError", "CheckpointError", "CalibrationError", "RecordingError",
+               "RenderingUnavailable", "FileProblem")
+
+
+def is_user_error(err: BaseException) -> bool:
+    return isinstance(err, (ConfigError, OSError)) or any(c.__name__ in USER_ERRORS for c in type(err).__mro__)
+
+
+def error_line(err: BaseException) -> str:
+    """One line for a user error, naming the file when the exception knows it."""
+    text = "; ".join(line.strip() for line in str(err).splitlines() if line.strip()) or type(err).__name__
+    filename = getattr(err, "filename", None)
+    if isinstance(err, OSError) and filename and (err.strerror or str(filename) not in text):
+        text = f"{filename}: {err.strerror or text}"
+    return text
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one sub-command. User errors (wrong file, key or value) print one line on stderr and
+    return 2; ``--debug`` (anywhere in the arguments) shows their traceback instead."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    argv = sys.argv[1:] if argv is None else argv
-    passthrough = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate}
-    if argv and argv[0] in passthrough:  # these parse their own flags (--help included)
-        return passthrough[argv[0]](argparse.Namespace(rest=argv[1:]))
-    args = build_parser().parse_args(argv)
-    for name in ("video", "out", "skin_picture"):
-        value = getattr(args, name, None)
-        if value:
-            Path(value).parent.mkdir(parents=True, exist_ok=True)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
+    command = argv[0] if argv else ""
     try:
+        passthrough = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate}
+        if command in passthrough:  # these parse their own flags (--help included)
+            return passthrough[command](argparse.Namespace(rest=argv[1:]))
+        args = build_parser().parse_args(argv)
+        for name in ("video", "out", "skin_picture"):
+            value = getattr(args, name, None)
+            if value:
+                Path(value).parent.mkdir(parents=True, exist_ok=True)
         return args.fn(args)
-    except ConfigError as err:
-        print(f"tacgnn: {err}", file=sys.stderr)
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print("tacgnn: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:
+        if debug or not is_user_error(err):
+            raise
+        print(f"{' '.join(['tacgnn', command][:1 + bool(command)])}: {error_line(err)}", file=sys.stderr)
         return 2
 
 
