@@ -135,3 +135,115 @@ def test_meat_can_face_sets_the_side_it_rests_on(tmp_path):
     assert up_axis["broad"][0] > 0.8 and up_axis["narrow"][2] > 0.8, up_axis
     with pytest.raises(ValueError, match="can_face"):
         GraspConfig(object="meat_can", can_face="upside")
+
+
+def _small_writer(root, num_shards=3):
+    return ShardedWriter(root, {"x": Field((3,)), "y": Field((2,))}, {"kind": "test"}, num_shards=num_shards,
+                         shard_size=8)
+
+
+def _make_shard(i):
+    rng = np.random.default_rng(i)
+    return {"x": rng.normal(size=(8, 3)), "y": rng.normal(size=(8, 2))}
+
+
+def _rehash(root, index):
+    """Record shard `index`'s current bytes in the manifest, as if it had been written so."""
+    from tacgnn.datasets.store import _sha256
+
+    manifest = json.loads((root / "manifest.json").read_text())
+    manifest["shards"][str(index)]["sha256"] = _sha256(root / manifest["shards"][str(index)]["file"])
+    (root / "manifest.json").write_text(json.dumps(manifest))
+
+
+def test_broken_hdf5_header_with_a_matching_checksum_is_named(tmp_path):
+    _small_writer(tmp_path).generate_missing(_make_shard)
+    shard = tmp_path / "shard_00001.h5"
+    raw = bytearray(shard.read_bytes())
+    raw[:8] = b"GARBAGE!"  # the HDF5 signature
+    shard.write_bytes(bytes(raw))
+    _rehash(tmp_path, 1)
+    with pytest.raises(DatasetError, match=r"shard_00001.h5: not a readable HDF5 shard"):
+        load(tmp_path)
+
+
+@pytest.mark.parametrize("value", [np.inf, -np.inf, np.nan])
+def test_non_finite_values_in_a_shard_are_refused_naming_it(tmp_path, value):
+    import h5py
+
+    _small_writer(tmp_path).generate_missing(_make_shard)
+    with h5py.File(tmp_path / "shard_00002.h5", "r+") as h5:
+        h5["y"][5, 1] = value
+    _rehash(tmp_path, 2)
+    with pytest.raises(DatasetError, match=r"shard_00002.h5: field 'y' holds NaN or Inf \(samples \[5\]\)"):
+        load(tmp_path)
+    assert load(tmp_path, fields=["x"])["x"].shape == (24, 3)  # only the fields read are checked
+
+
+@pytest.mark.parametrize("damage", ["flipped byte", "broken header", "truncated", "deleted"])
+def test_rerun_verifies_every_shard_and_regenerates_the_bad_ones(tmp_path, damage):
+    made = []
+
+    def make(i):
+        made.append(i)
+        return _make_shard(i)
+
+    _small_writer(tmp_path).generate_missing(make)
+    straight = load(tmp_path)
+    shard = tmp_path / "shard_00001.h5"
+    raw = bytearray(shard.read_bytes())
+    if damage == "flipped byte":
+        raw[len(raw) // 2] ^= 0xFF
+    elif damage == "broken header":
+        raw[:8] = b"GARBAGE!"
+    if damage == "truncated":
+        raw = raw[:len(raw) // 3]
+    if damage == "deleted":
+        shard.unlink()
+    else:
+        shard.write_bytes(bytes(raw))
+        if damage == "broken header":
+            _rehash(tmp_path, 1)  # the checksum alone cannot tell
+    made.clear()
+    assert _small_writer(tmp_path).generate_missing(make) == 1
+    assert made == [1]
+    repaired = load(tmp_path)
+    assert all(np.array_equal(repaired[k], straight[k]) for k in straight)
+    assert _small_writer(tmp_path).generate_missing(make) == 0  # now complete: nothing redone
+
+
+def test_temp_files_of_killed_writers_are_removed(tmp_path):
+    _small_writer(tmp_path, num_shards=1).generate_missing(_make_shard)
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        stale = [f".manifest.json.{dead.pid}.tmp", f".shard_00000.h5.{dead.pid}.tmp",
+                 ".manifest.json.k2j3h4_q", ".shard_00003.h5.abcdEFGH"]  # the last two: older writers' names
+        live = f".shard_00001.h5.{alive.pid}.tmp"
+        for name in [*stale, live]:
+            (tmp_path / name).write_bytes(b"partial")
+        _small_writer(tmp_path, num_shards=1)
+        left = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("."))
+        assert left == [live]  # a writer that still runs keeps its file
+    finally:
+        alive.kill()
+        alive.wait()
+
+
+def test_make_dataset_rerun_repairs_a_corrupt_shard(tmp_path):
+    from tacgnn.cli import main
+
+    out = tmp_path / "cube"
+    args = ["make-dataset", "grasp", "--object", "cube", "--out", str(out), "--samples", "64", "--shard-size", "32"]
+    assert main(args) == 0
+    straight = load(out)
+    shard = out / "shard_00000.h5"
+    raw = bytearray(shard.read_bytes())
+    raw[:8] = b"GARBAGE!"
+    shard.write_bytes(bytes(raw))
+    _rehash(out, 0)
+    assert main(args) == 0  # the rerun finds the bad shard and makes it again
+    repaired = load(out)
+    assert all(np.array_equal(repaired[k], straight[k]) for k in straight)
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]

@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from tacgnn.config import check, to_dict
+from tacgnn.config import ConfigError, check, to_dict
 from tacgnn.datasets.store import Field, ShardedWriter
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.scripted import FingerWave
@@ -43,10 +43,13 @@ class BaodingDataConfig:
     env: BaodingConfig = field(default_factory=lambda: BaodingConfig(obs_mode="tactile"))
 
     def __post_init__(self) -> None:
-        check(self.shard_size > 0 and self.samples % self.shard_size == 0, "samples",
-              f"must be a positive multiple of shard_size ({self.shard_size})")
-        check(self.num_envs >= 1, "num_envs", "must be >= 1")
+        check(self.shard_size > 0, "shard_size", f"must be >= 1, got {self.shard_size}")
+        check(self.samples > 0 and self.samples % self.shard_size == 0, "samples",
+              f"must be a positive multiple of shard_size ({self.shard_size}), got {self.samples}")
+        check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         check(self.keep_every >= 1, "keep_every", "must be >= 1")
+        check(self.settle_steps >= 0, "settle_steps", f"must be >= 0, got {self.settle_steps}")
+        check(self.action_noise >= 0, "action_noise", f"must be >= 0, got {self.action_noise}")
         check(self.env.obs_mode == "tactile", "env.obs_mode", "the dataset records the 'tactile' observation")
 
 
@@ -105,7 +108,8 @@ def policy_controller(cfg: BaodingDataConfig):
 
     policy, policy_env = load_policy(cfg.policy_checkpoint)
     if policy_env.obs_mode != "groundtruth":
-        raise ValueError(f"{cfg.policy_checkpoint}: a '{policy_env.obs_mode}' policy; recording needs 'groundtruth'")
+        raise ConfigError(f"policy_checkpoint {cfg.policy_checkpoint}: a '{policy_env.obs_mode}' policy; "
+                          "recording needs 'groundtruth'")
 
     def make(env: BaodingEnv, seed: int):
         rng = np.random.default_rng(seed)

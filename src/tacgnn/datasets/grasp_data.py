@@ -28,8 +28,10 @@ class GraspDataConfig:
     grasp: GraspConfig = field(default_factory=GraspConfig)
 
     def __post_init__(self) -> None:
-        check(self.shard_size > 0 and self.samples % self.shard_size == 0, "samples",
-              f"must be a positive multiple of shard_size ({self.shard_size})")
+        check(self.shard_size > 0, "shard_size", f"must be >= 1, got {self.shard_size}")
+        check(self.samples > 0 and self.samples % self.shard_size == 0, "samples",
+              f"must be a positive multiple of shard_size ({self.shard_size}), got {self.samples}")
+        check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         check(self.min_taxels >= 0, "min_taxels", "must be >= 0")
 
 

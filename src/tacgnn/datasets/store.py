@@ -6,20 +6,22 @@ A dataset is a folder:
                          per finished shard, its file name, sample count and SHA-256
     shard_00000.h5 ...   one HDF5 file per shard, every field a chunked array
 
-Each shard is written to a temporary file and renamed into place, then recorded in the
-manifest, which is itself replaced atomically; a killed writer leaves only finished
-shards behind. Shard i is generated from seed (seed, i), so resuming regenerates only
-the missing shards and the result equals an uninterrupted run. Reading checks each
-shard's checksum and the fields against the schema, and raises `DatasetError` naming
-the file and the problem.
+Each shard is written through `tacgnn.files.atomic_write` (a temp file renamed into
+place), then recorded in the manifest, which is replaced the same way; a killed writer
+leaves only finished shards behind, and the next writer removes its temp files. Shard i
+is generated from seed (seed, i), so a rerun regenerates only the shards that are missing
+or fail verification (checksum, HDF5 structure, schema) and the result equals an
+uninterrupted run. Reading runs the same checks, refuses NaN and Inf values, and raises
+`DatasetError` naming the file and the problem.
 """
 
 from __future__ import annotations
 
 import hashlib
+import io
 import json
-import os
-import tempfile
+import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
@@ -27,7 +29,12 @@ from typing import Callable, Iterator
 import h5py
 import numpy as np
 
+from tacgnn.files import atomic_write, atomic_write_text, remove_stale_temp_files
+
 FORMAT_VERSION = 1
+log = logging.getLogger(__name__)
+# temp files of the writer before `atomic_write` (tempfile.mkstemp names), left by killed runs
+_OLD_TEMP = re.compile(r"^\.(manifest\.json|shard_\d{5}\.h5)\.[A-Za-z0-9_]{8}$")
 
 
 class DatasetError(RuntimeError):
@@ -68,13 +75,36 @@ def _differences(old, new, prefix: str = "") -> tuple[list[tuple[str, object, ob
     return ([(prefix.rstrip("."), old, new)] if old != new else []), []
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+def _read_shard(path: Path, entry: dict, schema: dict, fields: list[str]) -> dict[str, np.ndarray]:
+    """The `fields` of one shard, checked: checksum, HDF5 structure, shapes, finite values.
+
+    Raises `DatasetError` naming the file and what is wrong with it.
+    """
+    if not path.is_file():
+        raise DatasetError(f"{path}: shard file missing")
+    if _sha256(path) != entry["sha256"]:
+        raise DatasetError(f"{path}: checksum mismatch, the file is corrupt")
+    out = {}
+    try:
+        with h5py.File(path, "r") as h5:
+            for f in fields:
+                if f not in h5:
+                    raise DatasetError(f"{path}: field '{f}' missing")
+                a = h5[f][...]
+                if a.shape != (entry["samples"], *schema[f]["shape"]):
+                    raise DatasetError(f"{path}: field '{f}' has shape {a.shape}, expected "
+                                       f"{(entry['samples'], *schema[f]['shape'])}")
+                if a.dtype.kind == "f" and not np.isfinite(a).all():
+                    bad = np.unique(np.argwhere(~np.isfinite(a))[:, 0])
+                    raise DatasetError(f"{path}: field '{f}' holds NaN or Inf (samples {bad[:5].tolist()}"
+                                       f"{' ...' if len(bad) > 5 else ''})")
+                out[f] = a
+    except (OSError, KeyError, ValueError, RuntimeError) as err:  # h5py: broken header, truncated data
+        if isinstance(err, DatasetError):
+            raise
+        first = (str(err).strip().splitlines() or [type(err).__name__])[0]
+        raise DatasetError(f"{path}: not a readable HDF5 shard ({first})") from err
+    return out
 
 
 class ShardedWriter:
@@ -93,8 +123,10 @@ class ShardedWriter:
         self.root = Path(root)
         self.schema = schema
         self.root.mkdir(parents=True, exist_ok=True)
-        for stale in self.root.glob(".shard_*"):  # temp files of a killed writer
-            stale.unlink()
+        remove_stale_temp_files(self.root)  # temp files of a killed writer
+        for stale in self.root.iterdir():
+            if _OLD_TEMP.match(stale.name):
+                stale.unlink(missing_ok=True)
         self.manifest_path = self.root / "manifest.json"
         header = {"format_version": FORMAT_VERSION, "metadata": metadata, "num_shards": num_shards,
                   "shard_size": shard_size,
@@ -113,12 +145,26 @@ class ShardedWriter:
             self.manifest = manifest
         else:
             self.manifest = {**header, "shards": {}}
-            _atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
+            atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
 
     def missing(self) -> list[int]:
         """Shard indices not yet written (or whose file is gone)."""
         done = {int(i) for i, s in self.manifest["shards"].items() if (self.root / s["file"]).exists()}
         return [i for i in range(self.manifest["num_shards"]) if i not in done]
+
+    def bad(self) -> dict[int, str]:
+        """Recorded shards that fail verification (checksum, HDF5 structure, schema, values): index -> why."""
+        problems = {}
+        schema = self.manifest["schema"]
+        for i in range(self.manifest["num_shards"]):
+            entry = self.manifest["shards"].get(str(i))
+            if entry is None or not (self.root / entry["file"]).exists():
+                continue
+            try:
+                _read_shard(self.root / entry["file"], entry, schema, list(schema))
+            except DatasetError as err:
+                problems[i] = str(err)
+        return problems
 
     def write_shard(self, index: int, arrays: dict[str, np.ndarray]) -> None:
         """Write shard `index` atomically and record it in the manifest."""
@@ -132,20 +178,23 @@ class ShardedWriter:
             if not np.isfinite(a).all():
                 raise DatasetError(f"shard {index}: field '{name}' holds NaN or Inf")
         name = f"shard_{index:05d}.h5"
-        fd, tmp = tempfile.mkstemp(dir=self.root, prefix=f".{name}.")
-        os.close(fd)
-        with h5py.File(tmp, "w") as h5:
+        buffer = io.BytesIO()  # HDF5 built in memory, then written and renamed in one go
+        with h5py.File(buffer, "w") as h5:
             for key, spec in self.schema.items():
                 chunk = (min(n, 1024), *spec.shape)
                 h5.create_dataset(key, data=arrays[key].astype(spec.dtype), chunks=chunk)
-        os.replace(tmp, self.root / name)
+        atomic_write(self.root / name, lambda fh: fh.write(buffer.getbuffer()))
         self.manifest["shards"][str(index)] = {"file": name, "samples": n, "sha256": _sha256(self.root / name)}
-        _atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
+        atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
 
     def generate_missing(self, make_shard: Callable[[int], dict[str, np.ndarray]],
                          progress: Callable[[Iterator[int]], Iterator[int]] | None = None) -> int:
-        """Generate and write every missing shard; returns how many were written."""
-        todo = self.missing()
+        """Generate and write every missing shard and regenerate every bad one (see `bad`);
+        returns how many were written."""
+        bad = self.bad()
+        for index, problem in bad.items():
+            log.warning("%s; regenerating it", problem)
+        todo = sorted(set(self.missing()) | set(bad))
         for index in (progress(todo) if progress else todo):
             self.write_shard(index, make_shard(index))
         return len(todo)
@@ -157,12 +206,36 @@ def read_manifest(root: str | Path) -> dict:
         raise DatasetError(f"{path}: no dataset manifest (generate the dataset first)")
     try:
         manifest = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise DatasetError(f"{path}: manifest is not valid JSON ({err})") from None
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"{path}: manifest is not a JSON object")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{path}: format version {manifest.get('format_version')}, "
                            f"this code reads {FORMAT_VERSION}")
+    _check_manifest(manifest, path)
     return manifest
+
+
+def _check_manifest(manifest: dict, path: Path) -> None:
+    """The manifest's structure, so that a damaged one is named instead of failing with a KeyError."""
+
+    def need(ok: bool, what: str) -> None:
+        if not ok:
+            raise DatasetError(f"{path}: damaged manifest, {what}")
+
+    for key, kind in (("metadata", dict), ("num_shards", int), ("shard_size", int), ("schema", dict),
+                      ("shards", dict)):
+        need(isinstance(manifest.get(key), kind), f"'{key}' missing or not a {kind.__name__}")
+    need(manifest["num_shards"] >= 0 and manifest["shard_size"] >= 1, "bad num_shards or shard_size")
+    for name, spec in manifest["schema"].items():
+        need(isinstance(spec, dict) and isinstance(spec.get("shape"), list) and isinstance(spec.get("dtype"), str),
+             f"schema field '{name}' needs a shape list and a dtype")
+    for index, entry in manifest["shards"].items():
+        need(isinstance(entry, dict) and isinstance(entry.get("file"), str) and isinstance(entry.get("sha256"), str)
+             and isinstance(entry.get("samples"), int), f"shard entry '{index}' needs file, samples and sha256")
+        need(Path(entry["file"]).name == entry["file"] and entry["file"] not in ("", ".", ".."),
+             f"shard entry '{index}' names a file outside the dataset folder")
 
 
 def load(root: str | Path, fields: list[str] | None = None, expect: dict | None = None) -> dict[str, np.ndarray]:
@@ -190,17 +263,7 @@ def load(root: str | Path, fields: list[str] | None = None, expect: dict | None 
     parts: dict[str, list[np.ndarray]] = {f: [] for f in fields}
     for i in range(manifest["num_shards"]):
         entry = manifest["shards"][str(i)]
-        path = root / entry["file"]
-        if not path.is_file():
-            raise DatasetError(f"{path}: shard file missing")
-        if _sha256(path) != entry["sha256"]:
-            raise DatasetError(f"{path}: checksum mismatch, the file is corrupt")
-        with h5py.File(path, "r") as h5:
-            for f in fields:
-                if f not in h5:
-                    raise DatasetError(f"{path}: field '{f}' missing")
-                a = h5[f][...]
-                if a.shape != (entry["samples"], *schema[f]["shape"]):
-                    raise DatasetError(f"{path}: field '{f}' has shape {a.shape}")
-                parts[f].append(a)
+        arrays = _read_shard(root / entry["file"], entry, schema, fields)
+        for f in fields:
+            parts[f].append(arrays[f])
     return {f: np.concatenate(v) for f, v in parts.items()}
