@@ -31,7 +31,9 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from tacgnn.config import check
+from tacgnn.envs import observation
 from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
+from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
 from tacgnn.hand.allegro import FINGER_RANGES, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
@@ -218,33 +220,28 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if mode == "perceived":
             if self.perception is None:
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
-            if getattr(self.perception, "joint_inputs", 0):  # a model that reads the hand's pose too
-                joints = self.sim.qpos[ids][:, self.joint_qpos_adr]
-                pred = self.perception(tactile, taxel_pos, joints)
-            else:
-                pred = self.perception(tactile, taxel_pos)
-            pred = np.asarray(pred, dtype=np.float64).reshape(-1, 6)
-            if self.config.track_balls:
-                pred = track_ball_identities(pred, self.perceived_balls[ids])
+            joints = self.sim.qpos[ids][:, self.joint_qpos_adr]  # for a model that reads the hand's pose too
+            previous = self.perceived_balls[ids] if self.config.track_balls else None
+            pred = observation.perceive_balls(self.perception, tactile, taxel_pos, joints, previous)
             self.perceived_balls[ids] = pred
             return pred
         raise AssertionError(mode)
 
     def _observe(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
-        proprio = np.concatenate([
-            self.ctrl_to_action(self.joint_pos[ids]), 0.2 * self.joint_vel[ids]], axis=1)
+        q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
         if self.config.obs_mode == "tactile":
+            proprio = observation.proprioception(q, qd, lo, hi)
             return {"proprio": np.concatenate([proprio, self.last_action[ids]], 1).astype(np.float32),
                     "tactile": tactile, "taxel_pos": taxel_pos}
         obj = self._object_obs(ids, tactile, taxel_pos)
-        return np.concatenate([proprio, obj, self.last_action[ids]], axis=1).astype(np.float32)
+        return observation.assemble(q, qd, obj, self.last_action[ids], lo, hi)
 
     def groundtruth_obs(self) -> np.ndarray:
         """(N, 54) the 'groundtruth' observation of the current state, whatever the obs mode:
         what a privileged critic reads during training (the actor gets the env's own obs)."""
-        proprio = np.concatenate([self.ctrl_to_action(self.joint_pos), 0.2 * self.joint_vel], axis=1)
         balls = self.ball_positions().reshape(self.num_envs, 6)
-        return np.concatenate([proprio, balls, self.last_action], axis=1).astype(np.float32)
+        return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
+                                    self.joint_high)
 
     def _skin(self, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Readings of envs `ids`, and taxel positions if the observation needs them.
@@ -490,17 +487,6 @@ def _assign_obs(obs, ids, new) -> None:
             obs[k][ids] = new[k]
     else:
         obs[ids] = new
-
-
-def track_ball_identities(pred: np.ndarray, previous: np.ndarray) -> np.ndarray:
-    """(N, 6) predicted ball pairs, swapped where that puts each ball nearer its previous position.
-
-    At 50 Hz a ball moves a few millimetres per step while the two are 5 cm apart, so the
-    nearer assignment keeps each ball's identity through a whole rotation.
-    """
-    swapped = pred[:, [3, 4, 5, 0, 1, 2]]
-    swap = ((swapped - previous) ** 2).sum(1) < ((pred - previous) ** 2).sum(1)
-    return np.where(swap[:, None], swapped, pred)
 
 
 RANDOMIZED_DRAWS = len(BALLS) + 2 + 2 * NUM_JOINTS  # uniforms per reset: ball masses, friction, gravity, gains, damping

@@ -14,6 +14,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from tacgnn.envs import observation
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.sim.batched import BatchedSim
@@ -46,11 +47,10 @@ class HandEnvBase:
     # --- the hand ----------------------------------------------------------------------
     def action_to_ctrl(self, action: np.ndarray) -> np.ndarray:
         """Absolute joint targets from actions in [-1, 1] (clipped), as in the paper."""
-        a = np.clip(action, -1.0, 1.0)
-        return self.joint_low + 0.5 * (a + 1.0) * (self.joint_high - self.joint_low)
+        return observation.action_to_target(action, self.joint_low, self.joint_high)
 
     def ctrl_to_action(self, ctrl: np.ndarray) -> np.ndarray:
-        return 2.0 * (ctrl - self.joint_low) / (self.joint_high - self.joint_low) - 1.0
+        return observation.target_to_action(ctrl, self.joint_low, self.joint_high)
 
     @property
     def joint_pos(self) -> np.ndarray:

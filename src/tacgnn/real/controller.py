@@ -1,21 +1,27 @@
 """One control tick of a trained blind Baoding policy on a real hand.
 
 `BlindController` turns what the hand measures (joint angles and velocities, calibrated
-skin readings) into the 16 joint position targets the policy commands, building the
-observation exactly as `tacgnn.envs.baoding.BaodingEnv` does:
+skin readings) into the 16 joint position targets the policy commands. The observation,
+the ball-identity tracking and the action-to-target mapping are those of
+`tacgnn.envs.observation`, the same functions `tacgnn.envs.baoding.BaodingEnv` uses:
 
     [ joint angles scaled to [-1, 1] by the joint ranges (16),
       0.2 x joint velocities (16),
-      ball positions perceived from the skin (6),
+      ball positions perceived from the skin, identities tracked (6),
       last action (16) ]
 
 The ball positions come from the policy file's perception model, fed with the skin
-readings and the taxel positions of `TaxelKinematics` at the measured angles. The
-action (clipped to [-1, 1]) maps onto the joint ranges of the policy's env config.
+readings and the taxel positions of `TaxelKinematics` at the measured angles.
+
+Safety on a real hand (all off by default, so the targets are the simulator's): targets
+within `max_step_rad` of the measured angles, target changes at most `max_target_rate`,
+and always inside the joint ranges. Each limit logs one line when it starts acting and
+one when it stops (with the number of ticks it acted).
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,12 +29,14 @@ import numpy as np
 import torch
 
 from tacgnn.config import check
+from tacgnn.envs import observation
 from tacgnn.hand.allegro import JOINT_NAMES
 from tacgnn.real.kinematics import TaxelKinematics
 
 NUM_JOINTS = len(JOINT_NAMES)
 SHIPPED_POLICY = Path(__file__).resolve().parent.parent / "assets" / "baoding_policy.pt"
 BLIND_MODES = ("perceived", "no_perception")
+log = logging.getLogger("tacgnn.real")
 
 
 @dataclass(frozen=True)
@@ -40,21 +48,45 @@ class BlindControllerConfig:
     max_step_rad: float = 0.0
     """If > 0, targets stay within this distance of the measured angles (a safety limit for first
     trials); 0 commands exactly what the policy does in simulation."""
+    max_target_rate: float = 0.0
+    """If > 0, a target moves at most this fast (rad/s) from the last commanded target (the first
+    tick of an episode: from the measured angles); 0: no limit."""
 
     def __post_init__(self) -> None:
         check(self.torch_threads >= 1, "torch_threads", "must be >= 1")
         check(self.max_step_rad >= 0, "max_step_rad", f"must be >= 0, got {self.max_step_rad}")
+        check(self.max_target_rate >= 0, "max_target_rate", f"must be >= 0, got {self.max_target_rate}")
+
+
+class SafetyLog:
+    """One log line when a safety rule starts acting and one when it stops, not one per tick."""
+
+    def __init__(self, logger: logging.Logger = log):
+        self.log = logger
+        self.active: dict[str, int] = {}
+        self.total: dict[str, int] = {}
+
+    def note(self, rule: str, acting: bool, message: str) -> None:
+        if acting:
+            if rule not in self.active:
+                self.log.warning("%s", message)
+                self.active[rule] = 0
+            self.active[rule] += 1
+            self.total[rule] = self.total.get(rule, 0) + 1
+        elif rule in self.active:
+            self.log.warning("%s: released after %d ticks", rule, self.active.pop(rule))
 
 
 class BlindController:
     """(joint_pos rad, joint_vel rad/s, skin (T,)) -> (16,) joint targets in rad, every 1 / 50 s.
 
-    Call `reset(joint_pos)` when control starts: like the env at reset, the last action
-    is then the current pose. A first `step` without `reset` does it implicitly.
+    Call `reset(joint_pos)` when an episode starts: like the env at reset, the last action
+    is then the current pose and ball tracking starts from the spawn points. A first
+    `step` without `reset` does it implicitly.
     """
 
     def __init__(self, config: BlindControllerConfig | None = None):
-        from tacgnn.learning.ppo import load_perception, load_policy
+        from tacgnn.learning.policy import load_perception, load_policy
 
         self.config = cfg = config or BlindControllerConfig()
         torch.set_num_threads(cfg.torch_threads)
@@ -71,61 +103,98 @@ class BlindController:
         self.joint_low, self.joint_high = np.asarray(hand.joint_ranges, dtype=np.float64).T
         self.num_taxels = self.kinematics.num_taxels
         self.control_dt = self.env_config.control_dt
+        self.track_balls = bool(self.env_config.track_balls)
+        self.spawn_balls = np.asarray(self.env_config.spawn_offsets, np.float64).reshape(1, observation.BALL_VALUES)
+        self.safety = SafetyLog()
         self.last_action: np.ndarray | None = None
+        self.last_target: np.ndarray | None = None
+        self.balls = self.spawn_balls.copy()
+        """(1, 6) the ball positions of the last observation (after tracking)."""
 
     # --- the env's mappings -----------------------------------------------------------
     def action_to_target(self, action: np.ndarray) -> np.ndarray:
-        a = np.clip(action, -1.0, 1.0)
-        return self.joint_low + 0.5 * (a + 1.0) * (self.joint_high - self.joint_low)
+        return observation.action_to_target(action, self.joint_low, self.joint_high)
 
     def target_to_action(self, target: np.ndarray) -> np.ndarray:
-        return 2.0 * (target - self.joint_low) / (self.joint_high - self.joint_low) - 1.0
+        return observation.target_to_action(target, self.joint_low, self.joint_high)
 
     # --- control ----------------------------------------------------------------------
     def reset(self, joint_pos: np.ndarray) -> None:
         """Start an episode at the measured pose (the last action becomes that pose)."""
         q = self._check("joint_pos", joint_pos, (NUM_JOINTS,))
         self.last_action = self.target_to_action(np.clip(q, self.joint_low, self.joint_high))
+        self.last_target = None
+        self.balls = self.spawn_balls.copy()
 
-    def perceive(self, joint_pos: np.ndarray, skin: np.ndarray) -> np.ndarray:
-        """(6,) ball positions (m, world frame) from the skin; zeros for a 'no_perception' policy."""
+    def perceive(self, joint_pos: np.ndarray, skin: np.ndarray, skin_joint_pos: np.ndarray | None = None) -> np.ndarray:
+        """(6,) ball positions (m, world frame) from the skin, identities tracked as in the env;
+        zeros for a 'no_perception' policy. Updates the tracking state."""
         if self.perception is None:
-            return np.zeros(6)
-        taxel_pos = self.kinematics.positions(joint_pos)[None]
-        readings = skin.astype(np.float32)[None]
-        if getattr(self.perception, "joint_inputs", 0):
-            return np.asarray(self.perception(readings, taxel_pos, joint_pos[None]), np.float64).reshape(6)
-        return np.asarray(self.perception(readings, taxel_pos), np.float64).reshape(6)
+            return np.zeros(observation.BALL_VALUES)
+        kin_q = joint_pos if skin_joint_pos is None else skin_joint_pos
+        taxel_pos = self.kinematics.positions(kin_q)[None]
+        previous = self.balls if self.track_balls else None
+        self.balls = observation.perceive_balls(self.perception, skin[None], taxel_pos, joint_pos[None], previous)
+        return self.balls[0]
 
-    def observation(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray) -> np.ndarray:
-        """The (54,) float32 observation the env would build from this state."""
+    def observation(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray,
+                    skin_joint_pos: np.ndarray | None = None) -> np.ndarray:
+        """The (54,) float32 observation the env builds from this state (updates ball tracking).
+
+        `skin_joint_pos`: the joint angles at the instant of the skin frame, for the taxel
+        positions (default: `joint_pos`).
+        """
         q = self._check("joint_pos", joint_pos, (NUM_JOINTS,))
         qd = self._check("joint_vel", joint_vel, (NUM_JOINTS,))
         s = self._check("skin", skin, (self.num_taxels,))
+        if skin_joint_pos is not None:
+            skin_joint_pos = self._check("skin_joint_pos", skin_joint_pos, (NUM_JOINTS,))
         if (s < 0).any():
             raise ValueError("skin readings must be >= 0 (calibrated readings from SkinProcessor, not raw values); "
                              f"negative at taxels {np.flatnonzero(s < 0)[:5].tolist()}")
         if self.last_action is None:
             self.reset(q)
-        return np.concatenate([self.target_to_action(q), 0.2 * qd, self.perceive(q, s),
-                               self.last_action]).astype(np.float32)
+        balls = self.perceive(q, s.astype(np.float32), skin_joint_pos)
+        return observation.assemble(q[None], qd[None], balls[None], self.last_action[None], self.joint_low,
+                                    self.joint_high)[0]
 
-    def step(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray) -> np.ndarray:
-        """(16,) joint position targets (rad) for this tick, within the joint ranges."""
-        obs = self.observation(joint_pos, joint_vel, skin)
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """The policy's (16,) action in [-1, 1] for one observation; becomes the last action."""
         action = np.asarray(self.policy(obs[None]), np.float64)[0]
         if not np.isfinite(action).all():
             raise FloatingPointError("the policy returned non-finite actions")
-        action = np.clip(action, -1.0, 1.0)
-        self.last_action = action
-        target = np.clip(self.action_to_target(action), self.joint_low, self.joint_high)
-        if self.config.max_step_rad > 0:
-            q = np.asarray(joint_pos, np.float64)
-            target = np.clip(target, q - self.config.max_step_rad, q + self.config.max_step_rad)
-            target = np.clip(target, self.joint_low, self.joint_high)
-        return target
+        self.last_action = np.clip(action, -1.0, 1.0)
+        return self.last_action
+
+    def step(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray,
+             skin_joint_pos: np.ndarray | None = None) -> np.ndarray:
+        """(16,) joint position targets (rad) for this tick, within the joint ranges."""
+        obs = self.observation(joint_pos, joint_vel, skin, skin_joint_pos)
+        return self.limit(self.action_to_target(self.act(obs)), np.asarray(joint_pos, np.float64))
 
     __call__ = step
+
+    def limit(self, target: np.ndarray, joint_pos: np.ndarray) -> np.ndarray:
+        """The safety rules on a target: step limit, rate limit, joint ranges (in that order)."""
+        cfg = self.config
+        out = target.copy()
+        if cfg.max_step_rad > 0:
+            near = np.clip(out, joint_pos - cfg.max_step_rad, joint_pos + cfg.max_step_rad)
+            self.safety.note("max_step_rad", bool((near != out).any()),
+                             f"max_step_rad: targets kept within {cfg.max_step_rad} rad of the measured angles")
+            out = near
+        if cfg.max_target_rate > 0:
+            ref = joint_pos if self.last_target is None else self.last_target
+            reach = cfg.max_target_rate * self.control_dt
+            slow = np.clip(out, ref - reach, ref + reach)
+            self.safety.note("max_target_rate", bool((slow != out).any()),
+                             f"max_target_rate: target changes limited to {cfg.max_target_rate} rad/s")
+            out = slow
+        inside = np.clip(out, self.joint_low, self.joint_high)
+        self.safety.note("joint_ranges", bool((np.abs(inside - out) > 1e-9).any()),  # not float round-off
+                         "joint_ranges: targets clipped to the policy's joint ranges")
+        self.last_target = inside
+        return inside
 
     @staticmethod
     def _check(name: str, value, shape: tuple[int, ...]) -> np.ndarray:

@@ -1,0 +1,87 @@
+"""The Baoding policy's observation and action, defined once for the env and the real hand.
+
+`tacgnn.envs.baoding.BaodingEnv` and `tacgnn.real.controller.BlindController` both build
+what the policy sees with these functions, so the simulated and the real hand cannot
+drift apart:
+
+    observation (54) = [ joint angles scaled to [-1, 1] by the joint ranges (16),
+                         JOINT_VEL_SCALE x joint velocities, rad/s (16),
+                         ball positions, m, world frame (6),
+                         last action (16) ]
+
+    action (16): absolute joint targets, [-1, 1] mapped linearly onto each joint's range.
+
+Ball positions perceived from the skin go through `perceive_balls`: the perception
+model, then (optionally) `track_ball_identities`, which keeps ball 0 ball 0 from one
+step to the next.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+JOINT_VEL_SCALE = 0.2
+"""The paper's scale of the joint velocities in the observation."""
+BALL_VALUES = 6
+"""Two balls, (x, y, z) each."""
+
+
+def action_to_target(action: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Joint targets (rad) from actions, clipped to [-1, 1] first: -1 -> low, +1 -> high."""
+    a = np.clip(action, -1.0, 1.0)
+    return low + 0.5 * (a + 1.0) * (high - low)
+
+
+def target_to_action(target: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The inverse of `action_to_target` (not clipped): joint angles scaled to [-1, 1] by the ranges."""
+    return 2.0 * (target - low) / (high - low) - 1.0
+
+
+def proprioception(joint_pos: np.ndarray, joint_vel: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(N, 32): scaled joint angles, then scaled joint velocities."""
+    return np.concatenate([target_to_action(joint_pos, low, high), JOINT_VEL_SCALE * joint_vel], axis=-1)
+
+
+def assemble(joint_pos: np.ndarray, joint_vel: np.ndarray, objects: np.ndarray, last_action: np.ndarray,
+             low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(N, 32 + K + 16) float32 observation; `objects` (N, K) is what the mode shows of the balls
+    (K = 6 ball positions; 16 actuator torques in the 'finger_torque' ablation)."""
+    return np.concatenate([proprioception(joint_pos, joint_vel, low, high), objects, last_action],
+                          axis=-1).astype(np.float32)
+
+
+def perceive_balls(perception: Callable[..., np.ndarray], tactile: np.ndarray, taxel_pos: np.ndarray,
+                   joint_pos: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
+    """(N, 6) ball positions a perception model reads off the skin, identities tracked.
+
+    Args:
+        perception: ``f(tactile, taxel_pos)``, or ``f(tactile, taxel_pos, joint_pos)`` for a
+            model with a ``joint_inputs`` attribute (it also reads the hand's pose).
+        tactile: (N, T) taxel readings (N).
+        taxel_pos: (N, T, 3) taxel positions (m) at the instant of the readings.
+        joint_pos: (N, 16) joint angles (rad), for models that read them.
+        previous: (N, 6) the positions given one step before (after tracking), or None to
+            take the model's order as it is.
+    """
+    tactile = np.asarray(tactile, dtype=np.float32)
+    taxel_pos = np.asarray(taxel_pos, dtype=np.float32)
+    if getattr(perception, "joint_inputs", 0):
+        pred = perception(tactile, taxel_pos, joint_pos)
+    else:
+        pred = perception(tactile, taxel_pos)
+    pred = np.asarray(pred, dtype=np.float64).reshape(-1, BALL_VALUES)
+    return pred if previous is None else track_ball_identities(pred, previous)
+
+
+def track_ball_identities(pred: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """(N, 6) predicted ball pairs, swapped where that puts each ball nearer its previous position.
+
+    The balls look alike, so a skin model can only say where two balls are, not which is
+    which. At 50 Hz a ball moves a few millimetres per step while the two are 5 cm apart,
+    so the nearer assignment keeps each ball's identity through a whole rotation.
+    """
+    swapped = pred[:, [3, 4, 5, 0, 1, 2]]
+    swap = ((swapped - previous) ** 2).sum(1) < ((pred - previous) ** 2).sum(1)
+    return np.where(swap[:, None], swapped, pred)
