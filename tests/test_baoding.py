@@ -200,8 +200,9 @@ def test_nan_in_one_env_resets_only_that_env():
 
 
 def test_diverging_simulation_is_reported_not_stepped_over():
-    env = make(2, sim=replace(BaodingConfig().sim, timestep=0.02), control_dt=0.02)
-    env.sim.batch.expand("opt.timestep")[:] = 2.0  # x100: explodes
+    env = make(2, sim=replace(BaodingConfig().sim, timestep=0.02, contact_timeconst=0.04), control_dt=0.02)
+    env.sim.batch.expand("opt.timestep")[:] = 2.0  # x100 ...
+    env.sim.batch.expand("actuator_forcerange")[:] = (-1e3, 1e3)  # ... and motors unlimited: explodes
     env.reset(seed=0)
     diverged = False
     for _ in range(5):

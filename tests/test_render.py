@@ -72,7 +72,7 @@ def fingertips_only() -> SkinLayout:
     return SkinLayout(patches=tuple(p for p in default_skin().patches if p.name.endswith("_tip")))
 
 
-@pytest.mark.parametrize("layout", [default_skin(), default_skin().with_pitch_scale(1.5), fewer_patches(),
+@pytest.mark.parametrize("layout", [default_skin(), default_skin().with_pitch_scale(0.8), fewer_patches(),
                                     fingertips_only()], ids=["default", "pitch1.5", "fewer", "tips"])
 def test_skin_map_shows_activations(layout):
     blank = figure_to_array(skin_map_image(layout, np.zeros(layout.num_taxels)))

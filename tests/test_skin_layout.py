@@ -93,7 +93,7 @@ def test_patch_on_missing_link_is_rejected():
 
 
 def test_another_layout_needs_no_code_change():
-    skin = SkinLayout(patches=tuple(p for p in default_skin().with_pitch_scale(1.2).patches
+    skin = SkinLayout(patches=tuple(p for p in default_skin().with_pitch_scale(1.05).patches
                                     if p.body != "palm"))
     model, skin = _model(skin)
     tactile = TactileModel(skin, model)

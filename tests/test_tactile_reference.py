@@ -8,7 +8,7 @@ import pytest
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, compile_with_skin, hand_scene
-from tacgnn.sim.tactile import SLOT_SIZE, TactileModel, _CandidateGrid, counter_normal, draw_step_seed
+from tacgnn.sim.tactile import EDGE_FLOOR, SLOT_SIZE, TactileModel, _CandidateGrid, counter_normal, draw_step_seed
 
 
 def reference_readings(tactile, sensordata, xpos, xmat, rng=None):
@@ -25,7 +25,7 @@ def reference_readings(tactile, sensordata, xpos, xmat, rng=None):
         d2 = np.sum((patch.local_positions()[0] - local) ** 2, axis=1)
         w = np.sqrt(np.maximum(0.0, 1.0 - d2 / a**2))
         expected = 2 * np.pi * a**2 / (3 * patch.pitch**2)
-        out[env, offsets[p]:offsets[p + 1]] += f * w / max(w.sum(), 0.5 * expected)
+        out[env, offsets[p]:offsets[p + 1]] += f * w / max(w.sum(), EDGE_FLOOR * expected)
     out[out < layout.threshold] = 0.0
     if rng is not None and layout.noise > 0:
         active = out > 0
@@ -72,8 +72,8 @@ def random_state(tactile, num_envs, seed, forces=(0.01, 100.0), reach=3.0):
 
 def float32_tolerance(tactile, sensordata):
     """The fast path runs in float32. At a disc's rim, w = sqrt(1 - d^2/a^2) turns a rounding
-    error of ~1e-7 in d^2/a^2 into up to ~3e-4 in w, i.e. up to 3e-4 F / (0.5 E) in a reading,
-    with 0.5 E = (pi / 3) (a / pitch)^2 = c F^(2/3)."""
+    error of ~1e-7 in d^2/a^2 into up to ~3e-4 in w, i.e. up to 3e-4 F / (k E) in a reading,
+    with k E = k (2 pi / 3) (a / pitch)^2 = c F^(2/3)."""
     c = min(np.pi / 3 * (p.contact_radius / p.pitch) ** 2 for p in tactile.layout.patches)
     return 1e-6 + 3e-4 * np.cbrt(tactile.contacts(sensordata)[0].max()) / c
 

@@ -6,7 +6,12 @@ frame z runs along the fingers, +x is the palmar side (fingers flex towards +x) 
 meshes). Joint 0 of each finger spreads it sideways (axis: palm normal), joints 1-3
 flex it. Each joint is driven by a position actuator with stiffness `stiffness`
 and joint damping `damping`, the two parameters system identification fits (one
-value for all joints, or 16 per-joint values as `tacgnn sysid` writes them).
+value for all joints, or 16 per-joint values as `tacgnn sysid` writes them). The
+actuator's torque is capped at `torque_limit` (the authors' 0.5 N m per joint): the
+policy cannot buy strength the real motors do not have.
+
+The links collide with each other (fingers with fingers, the thumb with the palm);
+MuJoCo leaves out parent-child pairs, so adjacent links never touch.
 
 The palm is fixed to the world, palm up: palm +x points to world +z, the fingers
 point along world +y, then the hand is tilted by `palm_tilt_deg` about world x
@@ -48,13 +53,24 @@ SEGMENT_OFFSETS = (0.0164, 0.054, 0.0384)  # base->proximal->medial->distal join
 THUMB_BASE = ((-0.0182, 0.019333, -0.045987), (0.477714, -0.521334, -0.521334, -0.477714))
 THUMB_OFFSETS = ((-0.027, 0.005, 0.0399), (0.0, 0.0, 0.0177), (0.0, 0.0, 0.0514))
 LINK_HALF_XY = (0.0098, 0.01375)  # link cross-section 0.0196 x 0.0275
+# The distal links' boxes are narrowed to lie inside the skinned fingertip capsule
+# (sqrt(2) x 0.0084 < TIP_RADIUS): a full-width box's edges stood out of the capsule where
+# the tip's taxels are, so a ball touched the bare box and the skin missed the contact.
+DISTAL_HALF_XY = (0.0084, 0.0084)
 PALM_HALF = (0.0204, 0.0565, 0.0475)
 PALM_CENTRE = (-0.0093, 0.0, -0.0475)
 PALM_MASS = 0.415
+# The palm's collision shape: the full width from the finger bases down to PALM_NOTCH_Z; below
+# it (the heel) the thumb's side is cut back to PALM_NOTCH_Y, where the real hand carries the
+# thumb's motor module and no skin. A full box there overlaps the thumb's proximal link by up
+# to 10 mm in the Baoding pose.
+PALM_NOTCH_Z = -0.037
+PALM_NOTCH_Y = 0.03
 TIP_RADIUS = 0.012
 
-# Geom collision classes: hand links touch objects, never each other.
-HAND_CONTYPE, HAND_CONAFFINITY = 1, 2
+# Geom collision classes: hand links touch objects and each other (adjacent links are
+# parent and child, which MuJoCo excludes); objects touch the hand and each other.
+HAND_CONTYPE, HAND_CONAFFINITY = 1, 3
 OBJECT_CONTYPE, OBJECT_CONAFFINITY = 2, 3
 
 
@@ -67,6 +83,10 @@ class HandConfig:
     One value for every joint, or 16 per-joint values in JOINT_NAMES order."""
     damping: float | tuple[float, ...] = 0.1
     """Joint damping (N m s/rad); identification grid {0, 0.1, 0.5}. One value or 16."""
+    torque_limit: float | tuple[float, ...] = 0.5
+    """Largest torque each actuator applies (N m): the authors' Isaac Gym hand caps every joint
+    at 0.5 N m, the figure their policies transferred to the real hand with (docs/environment.md).
+    One value or 16."""
     armature: float = 0.001
     """Reflected motor inertia per joint (kg m^2); keeps the stiff joints stable at 5 ms steps."""
     joint_ranges: tuple[tuple[float, float], ...] = DEFAULT_RANGES
@@ -84,7 +104,8 @@ class HandConfig:
             check(lo < hi, "hand.joint_ranges", f"joint {name} has low {lo} >= high {hi}")
         _check_per_joint(self.stiffness, "hand.stiffness", lambda v: v > 0, "> 0")
         _check_per_joint(self.damping, "hand.damping", lambda v: v >= 0, ">= 0")
-        for name in ("stiffness", "damping"):  # per-joint values as a tuple of floats (hashable, comparable)
+        _check_per_joint(self.torque_limit, "hand.torque_limit", lambda v: v > 0, "> 0")
+        for name in ("stiffness", "damping", "torque_limit"):  # per-joint values as a tuple of floats (hashable, comparable)
             if isinstance(getattr(self, name), (tuple, list)):
                 object.__setattr__(self, name, _per_joint(getattr(self, name)))
         check(self.armature >= 0, "hand.armature", f"must be >= 0, got {self.armature}")
@@ -98,6 +119,10 @@ class HandConfig:
     def joint_damping(self) -> tuple[float, ...]:
         """The 16 joint dampings, whether configured as one value or per joint."""
         return _per_joint(self.damping)
+
+    def joint_torque_limit(self) -> tuple[float, ...]:
+        """The 16 actuator torque limits (N m), whether configured as one value or per joint."""
+        return _per_joint(self.torque_limit)
 
     def palm_quat(self) -> np.ndarray:
         """World orientation of the palm frame (w, x, y, z)."""
@@ -135,8 +160,9 @@ def _box(body: mujoco.MjsBody, half: tuple, pos: tuple, density: float, name: st
                   rgba=[0.2, 0.2, 0.22, 1.0])
 
 
-def _link_box(body: mujoco.MjsBody, half_z: float, density: float, name: str) -> None:
-    _box(body, (*LINK_HALF_XY, half_z), (0.0, 0.0, half_z), density, name)
+def _link_box(body: mujoco.MjsBody, half_z: float, density: float, name: str,
+              half_xy: tuple[float, float] = LINK_HALF_XY) -> None:
+    _box(body, (*half_xy, half_z), (0.0, 0.0, half_z), density, name)
 
 
 def _tip(body: mujoco.MjsBody, half_len: float, z: float, name: str) -> None:
@@ -156,9 +182,14 @@ def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
     """Add the hand (bodies, joints, geoms, position actuators) to `spec`'s world."""
     spec.default.geom.friction = [cfg.friction, 0.005, 0.0001]
     palm = spec.worldbody.add_body(name="palm", pos=[0, 0, 0], quat=list(cfg.palm_quat()))
-    palm.add_geom(name="palm_geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=list(PALM_HALF),
-                  pos=list(PALM_CENTRE), mass=PALM_MASS, contype=HAND_CONTYPE,
-                  conaffinity=HAND_CONAFFINITY, rgba=[0.2, 0.2, 0.22, 1.0])
+    for name, (y0, y1), (z0, z1) in (
+            ("palm_geom", (-PALM_HALF[1], PALM_HALF[1]), (PALM_NOTCH_Z, 0.0)),
+            ("palm_heel_geom", (-PALM_HALF[1], PALM_NOTCH_Y), (-2 * PALM_HALF[2], PALM_NOTCH_Z))):
+        palm.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX,
+                      size=[PALM_HALF[0], (y1 - y0) / 2, (z1 - z0) / 2],
+                      pos=[PALM_CENTRE[0], (y0 + y1) / 2, (z0 + z1) / 2],
+                      mass=PALM_MASS / 2, contype=HAND_CONTYPE, conaffinity=HAND_CONAFFINITY,
+                      rgba=[0.2, 0.2, 0.22, 1.0])
     ranges = dict(zip(JOINT_NAMES, cfg.joint_ranges))
     d = cfg.link_density
     for finger, (pos, quat) in FINGER_BASES.items():
@@ -169,7 +200,8 @@ def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
             body = body.add_body(name=f"{finger}_{link}", pos=[0, 0, offset])
             _joint(body, f"{finger}_j{k}", (0, 1, 0), ranges[f"{finger}_j{k}"], cfg)
             half_z = {"proximal": 0.027, "medial": 0.0192, "distal": 0.008}[link]
-            _link_box(body, half_z, d, f"{finger}_{link}_geom")
+            _link_box(body, half_z, d, f"{finger}_{link}_geom",
+                      DISTAL_HALF_XY if link == "distal" else LINK_HALF_XY)
         _tip(body, 0.010, 0.019, f"{finger}_tip_geom")
 
     body = palm.add_body(name="thumb_base", pos=list(THUMB_BASE[0]), quat=list(THUMB_BASE[1]))
@@ -180,12 +212,20 @@ def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
     for k, (link, offset, axis, half_z) in enumerate(zip(LINKS[1:], THUMB_OFFSETS, axes, halves), start=1):
         body = body.add_body(name=f"thumb_{link}", pos=list(offset))
         _joint(body, f"thumb_j{k}", axis, ranges[f"thumb_j{k}"], cfg)
-        _link_box(body, half_z, d, f"thumb_{link}_geom")
+        _link_box(body, half_z, d, f"thumb_{link}_geom", DISTAL_HALF_XY if link == "distal" else LINK_HALF_XY)
     _tip(body, 0.008, 0.035, "thumb_tip_geom")
 
-    for joint, actuator, kp in zip(JOINT_NAMES, ACTUATOR_NAMES, cfg.joint_stiffness()):
+    # The palm is welded to the world, and MuJoCo's parent-child filter does not apply to bodies
+    # welded to the world: exclude the palm's pairs with the links mounted on it by hand.
+    for child in (*(f"{f}_base" for f in FINGER_BASES), "thumb_base"):
+        spec.add_exclude(bodyname1="palm", bodyname2=child)
+
+    for joint, actuator, kp, limit in zip(JOINT_NAMES, ACTUATOR_NAMES, cfg.joint_stiffness(),
+                                          cfg.joint_torque_limit()):
         lo, hi = ranges[joint]
         act = spec.add_actuator(name=actuator, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         act.set_to_position(kp=kp)
         act.ctrlrange = [lo, hi]
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.forcerange = [-limit, limit]
+        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE

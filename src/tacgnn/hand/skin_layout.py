@@ -72,6 +72,10 @@ class Patch:
             check(self.radius > 0 and self.length >= 0, f"{key}.radius",
                   "a capsule needs radius > 0 and length >= 0")
             check(abs(n[2]) < 1e-6, f"{key}.normal", "must be perpendicular to the capsule axis (z)")
+            top = self.arc_start + (self.rows - 1) * self.pitch
+            check(self.arc_start >= 0 and top <= self.length + self.radius * np.pi / 2 + 1e-9,
+                  f"{key}.rows", f"the last row lies {top:.4f} m along the profile, beyond the cap's top "
+                  f"({self.length + self.radius * np.pi / 2:.4f} m): its taxels would leave the link's surface")
 
     @property
     def size(self) -> int:
@@ -89,29 +93,45 @@ class Patch:
 
     def local_positions(self) -> tuple[np.ndarray, np.ndarray]:
         """Rest positions and outward normals of the taxels, (size, 3) each, link frame."""
-        cells = self.grid_cells().astype(float)
+        return self.surface_points(self.grid_cells().astype(float))
+
+    def surface_points(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points and outward normals, (n, 3) each, link frame, at (row, col) grid coordinates.
+
+        Whole coordinates are the taxels; fractional ones lie between them, so the area a
+        patch covers is rows and columns in [-0.5, count - 0.5].
+        """
+        cells = np.asarray(cells, float)
         u = (cells[:, 0] - (self.rows - 1) / 2) * self.pitch
-        v = (cells[:, 1] - (self.cols - 1) / 2) * self.pitch
+        v_steps = cells[:, 1] - (self.cols - 1) / 2
         origin = np.asarray(self.origin, float)
         normal = np.asarray(self.normal, float)
         if self.surface == "plane":
             row_axis = np.asarray(self.row_axis, float)
             col_axis = np.cross(normal, row_axis)
-            pos = origin + u[:, None] * row_axis + v[:, None] * col_axis
+            pos = origin + u[:, None] * row_axis + (v_steps * self.pitch)[:, None] * col_axis
             return pos, np.tile(normal, (len(pos), 1))
         # capsule: arc length s along the profile, angle phi around the axis
         axis = np.array([0.0, 0.0, 1.0])
         side = np.cross(axis, normal)
         s = self.arc_start + cells[:, 0] * self.pitch
-        phi = v / self.radius
+        theta = np.clip((s - self.length) / self.radius, 0.0, np.pi / 2)  # latitude on the cap
+        phi = v_steps * self.column_angle(theta)
         radial = np.cos(phi)[:, None] * normal + np.sin(phi)[:, None] * side
-        on_cap = s > self.length
-        theta = np.where(on_cap, (s - self.length) / self.radius, 0.0)
-        theta = np.minimum(theta, np.pi / 2)
         out = np.cos(theta)[:, None] * radial + np.sin(theta)[:, None] * axis
         centre_z = np.minimum(s, self.length)
         axis_point = np.asarray([origin[0], origin[1], 0.0]) + (origin[2] + centre_z)[:, None] * axis
         return axis_point + self.radius * out, out
+
+    def column_angle(self, theta: np.ndarray) -> np.ndarray:
+        """Angle (rad) between neighbouring columns of a capsule patch at cap latitude `theta`.
+
+        Columns stay one pitch of arc apart on every row: on the cap the circles of latitude
+        shrink, so the angle grows (at most a full turn shared by the columns). A fixed angle
+        bunched the cap's last rows to a fifth of the pitch.
+        """
+        ring = np.maximum(self.radius * np.cos(theta), 1e-9)
+        return np.minimum(self.pitch / ring, 2 * np.pi / self.cols)
 
 
 @dataclass(frozen=True)

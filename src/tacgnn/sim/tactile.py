@@ -9,11 +9,12 @@ several taxels. We model each contact as a Hertzian pressure distribution
 centred on the contact point, where ``a_1N`` (`Patch.contact_radius`) is the
 radius pressed by 1 N on that patch. Taxel i of the contact's patch reads
 
-    f_i = F_n * w_i / max(sum_j w_j, 0.5 * E),   w_i = sqrt(max(0, 1 - d_i^2 / a^2)),
+    f_i = F_n * w_i / max(sum_j w_j, k * E),   w_i = sqrt(max(0, 1 - d_i^2 / a^2)),
 
 with d_i the taxel's distance to the contact point and E = 2 pi a^2 / (3 pitch^2) the
-sum of w over an unbounded grid. Inside a patch the readings sum to F_n; a contact
-half off the skin loses the part that falls off. Readings of several contacts add;
+sum of w over an unbounded grid. Inside a patch, and on the border's strip half a pitch
+wide that the outer taxels cover, the readings sum to F_n (k = `EDGE_FLOOR` is small
+enough for that, corners included); a contact further off the skin loses what falls off. Readings of several contacts add;
 values below the threshold read 0; then multiplicative Gaussian noise.
 
 The contacts come from one MuJoCo ``contact`` sensor per patch (the K strongest
@@ -32,6 +33,10 @@ import numpy as np
 from tacgnn.hand.skin_layout import SkinLayout
 
 SLOT_SIZE = 7  # found, force (normal, tangent x2), pos (3)
+# Least share of the unbounded grid's weight sum E that normalises a contact's readings
+# (see the module docstring): tests/test_tactile.py measures that covered contacts keep
+# their force with it.
+EDGE_FLOOR = 0.1
 _CONTACT_DATA = mujoco.mjtConDataField.mjCONDATA_FOUND, mujoco.mjtConDataField.mjCONDATA_FORCE, \
     mujoco.mjtConDataField.mjCONDATA_POS
 _REDUCE_MAXFORCE = 2
@@ -169,7 +174,7 @@ class _CandidateGrid:
 
 
 def _press_kernel(out, sensordata, xpos, xmat, force_idx, patch_of_slot, body_ids, contact_radius,
-                  half_e_over_a2, origin, cell_size, stride, last, first_cell, list_start, counts,
+                  floor_over_a2, origin, cell_size, stride, last, first_cell, list_start, counts,
                   num_bins, bins_per_cell, order, taxel_xyz, num_taxels, threshold, noise, seed,
                   table):  # pragma: no cover (compiled)
     """`TactileModel._press_numpy` and the threshold and noise as one compiled loop.
@@ -223,7 +228,7 @@ def _press_kernel(out, sensordata, xpos, xmat, force_idx, patch_of_slot, body_id
                 u = a2 - d0 * d0 - d1 * d1 - d2 * d2
                 if u > 0:
                     total += np.sqrt(u)
-            scale = np.float32(f / max(total, half_e_over_a2[p] * a2 * radius))
+            scale = np.float32(f / max(total, floor_over_a2[p] * a2 * radius))
             for j in range(first, first + count):
                 t = order[j]
                 d0, d1, d2 = taxel_xyz[0, t] - l0, taxel_xyz[1, t] - l1, taxel_xyz[2, t] - l2
@@ -296,7 +301,7 @@ class TactileModel:
         self.patch_of_taxel = layout.patch_index()
         self._taxel_xyz = self.local_positions.T.copy()  # (3, T): one contiguous row per axis
         self._radius = np.array([p.contact_radius for p in patches])
-        self._half_e_over_a2 = np.array([np.pi / (3.0 * p.pitch**2) for p in patches])  # 0.5 E / a^2
+        self._floor_over_a2 = np.array([EDGE_FLOOR * 2 * np.pi / (3.0 * p.pitch**2) for p in patches])  # k E / a^2
         self._grid = _CandidateGrid(layout)
         # gather indices of all slots' (normal force, position) in the sensordata row
         slot = np.arange(self.contacts_per_patch) * SLOT_SIZE
@@ -347,7 +352,7 @@ class TactileModel:
             g = self._grid
             kernel(out, np.ascontiguousarray(sensordata, np.float64), np.ascontiguousarray(xpos, np.float64),
                    np.ascontiguousarray(xmat, np.float64), self._force_idx_flat, self._patch_of_slot,
-                   self.body_ids, self._radius, self._half_e_over_a2, g.origin, g.cell_size, g.stride, g.last,
+                   self.body_ids, self._radius, self._floor_over_a2, g.origin, g.cell_size, g.stride, g.last,
                    g.first_cell, g.list_start, g.counts, g.num_bins, _CELL_PITCHES / _BIN_PITCHES, g.order,
                    self._taxel_xyz, self.num_taxels, np.float32(self.layout.threshold), float(noise), seed,
                    normal_table())
@@ -398,9 +403,9 @@ class TactileModel:
             u -= diff
         np.maximum(u, 0.0, out=u)
         np.sqrt(u, out=u)
-        # f_i = F u_i / max(sum u, 0.5 E a); a contact without candidates gets a stray sum
+        # f_i = F u_i / max(sum u, k E a); a contact without candidates gets a stray sum
         # here, but has no entries to scale
         total_u = np.add.reduceat(u, np.minimum(start, total - 1))
-        scale = f / np.maximum(total_u, self._half_e_over_a2[patch] * a2 * radius)
+        scale = f / np.maximum(total_u, self._floor_over_a2[patch] * a2 * radius)
         u *= np.repeat(scale.astype(np.float32), count)
         np.add.at(out, np.repeat(env * self.num_taxels, count) + taxel, u)

@@ -1,0 +1,170 @@
+"""The hand is no stronger, softer or more forgiving than the real one.
+
+Torque limits hold, links collide and start clear, spawns never overlap, balls do not sink,
+the skin reports the force of contacts on the area it covers, and randomisation acts.
+"""
+
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+import pytest
+
+from tacgnn.config import ConfigError
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig
+from tacgnn.hand.allegro import HandConfig
+from tacgnn.hand.skin_layout import Patch, default_skin
+from tacgnn.sim.scene import SimConfig
+from tacgnn.sim.tactile import TactileModel
+
+
+def _ball_contacts(model, data, ball_geoms):
+    for j in range(data.ncon):
+        c = data.contact[j]
+        if ball_geoms & {int(c.geom[0]), int(c.geom[1])}:
+            yield j, c
+
+
+def test_actuator_torque_never_exceeds_the_limit_and_per_joint_limits_apply():
+    limits = tuple(0.3 if k % 2 else 0.6 for k in range(16))
+    env = BaodingEnv(BaodingConfig(num_envs=8, hand=replace(BaodingConfig().hand, torque_limit=limits)))
+    rng = np.random.default_rng(0)
+    peak = np.zeros(16)
+    for _ in range(30):  # bang-bang targets: the position servo asks for far more than the limit
+        env.step(rng.choice([-1.0, 1.0], size=(8, 16)))
+        peak = np.maximum(peak, np.abs(env.sim.actuator_force).max(0))
+    assert np.all(peak <= np.asarray(limits) + 1e-9)
+    # the fingers' wide ranges let the servo ask for more than the limit, so the limit binds
+    # (the thumb's Baoding ranges are 0.1-0.2 rad: kp x range stays near the limit)
+    assert np.all(peak[:12] >= 0.99 * np.asarray(limits)[:12])
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), (0.5,) * 15])
+def test_bad_torque_limit_is_refused_naming_the_key(bad):
+    with pytest.raises(ConfigError, match="hand.torque_limit"):
+        HandConfig(torque_limit=bad)
+
+
+def test_no_geometry_overlaps_at_the_start_pose_and_fingers_collide():
+    env = BaodingEnv(BaodingConfig(num_envs=1, joint_noise=0.0, spawn_noise=0.0))
+    m, d = env.model, mujoco.MjData(env.model)
+    d.qpos[:] = env.sim.qpos[0]
+    mujoco.mj_forward(m, d)
+    assert d.ncon == 0 or min(d.contact.dist[:d.ncon]) >= 0, "nothing overlaps at the start"
+    # push the index finger's tip into the middle finger: link-to-link contacts exist
+    q = env.initial_ctrl.copy()
+    q[0], q[4] = env.joint_high[0], env.joint_low[4]
+    d.qpos[env.joint_qpos_adr] = q
+    mujoco.mj_forward(m, d)
+    names = {(m.geom(int(c.geom[0])).name, m.geom(int(c.geom[1])).name) for c in d.contact[:d.ncon]}
+    assert any("index" in a and "middle" in b or "middle" in a and "index" in b for a, b in names)
+
+
+def test_spawned_balls_never_overlap_each_other_or_a_link():
+    env = BaodingEnv(BaodingConfig(num_envs=500, spawn_noise=0.02))  # twice the default noise
+    m, d = env.model, mujoco.MjData(env.model)
+    balls = set(env.ball_geom.tolist())
+    for seed in range(4):
+        env.reset(seed=seed)
+        for i in range(env.num_envs):
+            d.qpos[:] = env.sim.qpos[i]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_collision(m, d)
+            assert all(c.dist >= 0 for _, c in _ball_contacts(m, d, balls)), f"reset {seed}, env {i}"
+
+
+def test_spawn_offsets_inside_the_hand_are_refused():
+    with pytest.raises(ConfigError, match="spawn_offsets"):
+        BaodingEnv(BaodingConfig(num_envs=1, spawn_offsets=((0.0, -0.01, 0.05), (0.01, -0.01, 0.05))))
+
+
+def test_a_resting_ball_does_not_sink():
+    env = BaodingEnv(BaodingConfig(num_envs=1, joint_noise=0.0, spawn_noise=0.0))
+    m, d = env.model, mujoco.MjData(env.model)
+    balls = set(env.ball_geom.tolist())
+    deepest = 0.0
+    for _ in range(100):  # 2 s holding the start pose
+        env.step(np.tile(env.ctrl_to_action(env.initial_ctrl), (1, 1)))
+        env.sim.batch.get_data(0, d)
+        mujoco.mj_forward(m, d)
+        deepest = max([deepest] + [-c.dist for _, c in _ball_contacts(m, d, balls)])
+    assert deepest < 0.002
+
+
+@pytest.mark.parametrize("bad", [dict(contact_timeconst=0.005), dict(contact_solimp=(0.99, 0.9, 0.001)),
+                                 dict(contact_dampratio=0.0)])
+def test_unstable_contact_parameters_are_refused(bad):
+    with pytest.raises(ConfigError, match="sim.contact"):
+        SimConfig(**bad)
+
+
+def test_ball_friction_is_the_friction_of_its_contacts_with_the_hand():
+    env = BaodingEnv(BaodingConfig(num_envs=1, ball_friction=0.3, joint_noise=0.0, spawn_noise=0.0))
+    m, d = env.model, mujoco.MjData(env.model)
+    for _ in range(5):
+        env.step(np.tile(env.ctrl_to_action(env.initial_ctrl), (1, 1)))
+    env.sim.batch.get_data(0, d)
+    mujoco.mj_forward(m, d)
+    frictions = [c.friction[0] for _, c in _ball_contacts(m, d, set(env.ball_geom.tolist()))]
+    assert frictions and np.allclose(frictions, 0.3)
+
+
+def test_randomisation_changes_what_the_physics_uses():
+    cfg = BaodingConfig(num_envs=16, randomization=RandomizationConfig(enabled=True, torque_limit_scale=(0.2, 0.4)))
+    env = BaodingEnv(cfg)
+    limits = env.sim.expand("actuator_forcerange")[:, :, 1]
+    assert np.all((limits >= 0.1 - 1e-9) & (limits <= 0.2 + 1e-9)) and limits.std() > 0
+    assert env.sim.expand("geom_friction")[:, env.ball_geom[0], 0].std() > 0
+    assert env.sim.expand("opt.gravity")[:, 2].std() > 0
+    rng = np.random.default_rng(0)
+    peak = np.zeros((16, 16))
+    for _ in range(10):
+        env.step(rng.choice([-1.0, 1.0], size=(16, 16)))
+        peak = np.maximum(peak, np.abs(env.sim.actuator_force))
+    assert np.all(peak <= limits + 1e-9), "each env's motors obey its own drawn limit"
+
+
+def _press_on_surface(tactile, model, data, patch_index, cells, force):
+    """Readings of one contact of `force` N at grid coordinates `cells` of a patch (no noise)."""
+    p = tactile.layout.patches[patch_index]
+    local, _ = p.surface_points(cells[None])
+    b = model.body(p.body).id
+    world = local[0] @ data.xmat[b].reshape(3, 3).T + data.xpos[b]
+    sd = np.zeros((1, model.nsensordata))
+    adr = model.sensor_adr[model.sensor(f"skin_{p.name}").id]
+    sd[0, adr], sd[0, adr + 1], sd[0, adr + 4:adr + 7] = 1.0, force, world
+    return tactile.readings(sd, data.xpos[None], data.xmat[None])[0]
+
+
+def test_taxels_report_the_force_of_contacts_on_the_covered_area():
+    skin = replace(default_skin(), noise=0.0)
+    env = BaodingEnv(BaodingConfig(num_envs=1, skin=skin))
+    m, d = env.model, mujoco.MjData(env.model)
+    d.qpos[:] = env.sim.qpos[0]
+    mujoco.mj_forward(m, d)
+    tactile = TactileModel(skin, m)
+    rng = np.random.default_rng(0)
+    for k, patch in enumerate(skin.patches):
+        cells = patch.grid_cells().astype(float)
+        points = cells[rng.integers(0, len(cells), 60)] + rng.uniform(-0.5, 0.5, (60, 2))
+        for force in (0.5, 2.0):
+            shares = [_press_on_surface(tactile, m, d, k, c, force).sum() / force for c in points]
+            assert min(shares) >= 0.98, (patch.name, force)
+
+
+def test_cap_rows_are_not_bunched():
+    for patch in default_skin().patches:
+        if patch.surface != "capsule":
+            continue
+        pos, _ = patch.local_positions()
+        cells = patch.grid_cells()
+        for row in range(patch.rows):
+            ring = pos[cells[:, 0] == row]
+            gaps = np.linalg.norm(np.diff(ring, axis=0), axis=1)
+            assert gaps.min() >= 0.8 * patch.pitch, (patch.name, row)
+
+
+def test_a_cap_layout_that_leaves_the_surface_is_refused():
+    with pytest.raises(ConfigError, match="skin.tip.rows"):
+        Patch(name="tip", body="index_distal", surface="capsule", rows=30, cols=6, pitch=0.0026,
+              origin=(0, 0, 0.009), radius=0.012, length=0.02)
