@@ -1,0 +1,133 @@
+"""The skin's taxel model in torch, on the device of the physics (CPU or GPU).
+
+The same model as `tactile.py` (a Hertzian disc per contact, threshold, counter-based
+noise with the same draws), written with fixed shapes so that a GPU runs it without
+host round trips: every contact slot of every patch is paired with every taxel of its
+patch, K x T pairs per env (2,612 for the default skin), and the pairs a disc does not
+reach add zero; the pairs are laid out (K, T), so the readings are a sum over K. The candidate grid of `tactile.py` saves work on a CPU thread; on a GPU,
+fixed shapes are worth more than skipped pairs.
+
+Input arrays may be numpy (returned as numpy, sharing memory on the CPU) or torch tensors
+(returned as tensors on their device), e.g. `WarpSim.device_views()`.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import torch
+
+from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.sim.tactile import _GOLDEN, _MIX1, _MIX2, _NORMAL_BITS, TactileModel, draw_step_seed, normal_table
+
+
+def _signed(value: np.uint64) -> int:
+    """The int64 with the bits of a uint64 (torch has no uint64 arithmetic)."""
+    return int(np.uint64(value).view(np.int64))
+
+
+def _shift_right(z: torch.Tensor, k: int) -> torch.Tensor:
+    """Logical right shift of int64 bits (torch's >> is arithmetic)."""
+    return (z >> k) & ((1 << (64 - k)) - 1)
+
+
+class DeviceTactile:
+    """Taxel readings and positions of N envs, as `TactileModel`, in torch.
+
+    Args:
+        layout: the skin.
+        model: a compiled model with the skin's sensors (see `add_skin_sensors`).
+        device: torch device of the tensors it is given.
+
+    Shapes (N envs, T taxels):
+        readings(sensordata (N, nsensordata), xpos (N, nbody, 3), xmat (N, nbody, 9), rng) -> (N, T) float32
+        positions(xpos, xmat) -> (N, T, 3) float32
+    """
+
+    def __init__(self, layout: SkinLayout, model: mujoco.MjModel, device: str | torch.device = "cpu"):
+        ref = TactileModel(layout, model)
+        self.layout, self.num_taxels = layout, layout.num_taxels
+        self.device = torch.device(device)
+        dev = dict(device=self.device)
+        patches = layout.patches
+        patch_of_slot = ref._patch_of_slot  # (S,) slots: patch-major, K contacts per patch
+        self.force_idx = torch.as_tensor(ref._force_idx.ravel(), **dev)
+        self.pos_idx = torch.as_tensor(ref._pos_idx.reshape(-1, 3), **dev)
+        self.slot_body = torch.as_tensor(ref.body_ids[patch_of_slot], **dev)
+        self.slot_radius = torch.as_tensor(ref._radius[patch_of_slot], **dev)  # a_1N, float64
+        self.slot_floor = torch.as_tensor(ref._floor_over_a2[patch_of_slot], **dev)  # k E / a^2
+        # pairs (k, taxel t) for k < K: t with its patch's k-th contact slot; (K * T,) row-major
+        k_count = ref.contacts_per_patch
+        slot_of_pair = ref.patch_of_taxel[None, :] * k_count + np.arange(k_count)[:, None]
+        self.slot_of_pair = torch.as_tensor(slot_of_pair.ravel(), **dev)
+        self.pair_xyz = torch.as_tensor(np.tile(ref.local_positions.T, (1, k_count)), **dev)  # (3, K * T)
+        patch_onehot = np.eye(len(patches))[ref.patch_of_taxel]  # (T, P): sums each patch's taxels
+        self.patch_onehot = torch.as_tensor(patch_onehot, dtype=torch.float32, **dev)
+        self.contacts_per_patch = k_count
+        self.body_of_taxel = torch.as_tensor(ref.body_ids[ref.patch_of_taxel], **dev)
+        self.local_positions = torch.as_tensor(ref.local_positions, **dev)  # (T, 3) float32
+        self.table = torch.as_tensor(normal_table(), **dev)
+        self.num_slots = len(patch_of_slot)
+
+    def contacts(self, sensordata):
+        """Normal forces (N, P, K) and world contact points (N, P, K, 3) from sensordata."""
+        as_numpy = isinstance(sensordata, np.ndarray)
+        data = torch.as_tensor(sensordata, device=self.device)
+        k = self.contacts_per_patch
+        force, point = data[:, self.force_idx].reshape(len(data), -1, k), data[:, self.pos_idx].reshape(len(data), -1, k, 3)
+        return (force.cpu().numpy(), point.cpu().numpy()) if as_numpy else (force, point)
+
+    def readings(self, sensordata, xpos, xmat, rng: np.random.Generator | None = None):
+        """Taxel readings (N, T): each contact's normal force spread over its patch."""
+        as_numpy = isinstance(sensordata, np.ndarray)
+        sensordata, xpos, xmat = (torch.as_tensor(a, device=self.device) for a in (sensordata, xpos, xmat))
+        n = sensordata.shape[0]
+        noise = self.layout.noise if rng is not None else 0.0
+        seed = draw_step_seed(rng) if noise > 0 else np.uint64(0)  # the same draw as TactileModel
+
+        force = sensordata[:, self.force_idx]  # (N, S) normal forces, 0 in empty slots
+        point = sensordata[:, self.pos_idx]  # (N, S, 3) world contact points
+        rot = xmat[:, self.slot_body].reshape(n, -1, 3, 3)
+        # contact point in the link frame: R^T (c - x), in the input's precision
+        local = torch.einsum("nsji,nsj->nsi", rot, point - xpos[:, self.slot_body]).to(torch.float32)
+        pressed = force > 0
+        f = torch.where(pressed, force, torch.zeros_like(force)).to(torch.float64)
+        radius = self.slot_radius * torch.pow(f, 1.0 / 3.0)  # a = a_1N F^(1/3)
+        a2 = radius * radius
+        # u = sqrt(max(0, a^2 - d^2)) per (k, taxel) pair, float32 as in tactile.py
+        k_count, t_count = self.contacts_per_patch, self.num_taxels
+        at_pair = local.permute(2, 0, 1).index_select(2, self.slot_of_pair)  # (3, N, K * T)
+        u = a2.to(torch.float32).index_select(1, self.slot_of_pair)
+        for axis in range(3):
+            diff = self.pair_xyz[axis] - at_pair[axis]
+            u = u - diff * diff
+        u = torch.sqrt(torch.clamp(u, min=0.0)).reshape(n, k_count, t_count)
+        total = (u @ self.patch_onehot).transpose(1, 2).reshape(n, -1)  # (N, S): each slot's sum of u
+        # f_i = F u_i / max(sum u, k E a); empty slots have F = 0 and a = 0
+        denom = torch.maximum(total.to(torch.float64), self.slot_floor * a2 * radius)
+        scale = torch.where(pressed, f / torch.where(pressed, denom, torch.ones_like(denom)), torch.zeros_like(f))
+        u = u * scale.to(torch.float32).index_select(1, self.slot_of_pair).reshape(n, k_count, t_count)
+        out = u.sum(1)  # readings of several contacts add
+        out = torch.where(out < self.layout.threshold, torch.zeros_like(out), out)  # below the threshold: 0
+        if noise > 0:
+            out = out * (1.0 + noise * self._normal(seed, n))
+            out = torch.clamp(out, min=0.0)
+        return out.cpu().numpy() if as_numpy else out
+
+    def _normal(self, seed: np.uint64, n: int) -> torch.Tensor:
+        """`tactile.counter_normal` for flat indices env * T + taxel, in int64 bit arithmetic."""
+        z = torch.arange(n * self.num_taxels, dtype=torch.int64, device=self.device)
+        z = z * _signed(_GOLDEN) + _signed(seed)
+        z = (z ^ _shift_right(z, 30)) * _signed(_MIX1)
+        z = (z ^ _shift_right(z, 27)) * _signed(_MIX2)
+        z = z ^ _shift_right(z, 31)
+        return self.table[_shift_right(z, 64 - _NORMAL_BITS)].reshape(n, self.num_taxels)
+
+    def positions(self, xpos, xmat):
+        """World positions (N, T, 3) of all taxels: x_link + R_link p_local."""
+        as_numpy = isinstance(xpos, np.ndarray)
+        xpos, xmat = (torch.as_tensor(a, device=self.device) for a in (xpos, xmat))
+        n = xpos.shape[0]
+        rot = xmat[:, self.body_of_taxel].reshape(n, -1, 3, 3).to(torch.float32)
+        out = torch.einsum("ntij,tj->nti", rot, self.local_positions) + xpos[:, self.body_of_taxel].to(torch.float32)
+        return out.cpu().numpy() if as_numpy else out

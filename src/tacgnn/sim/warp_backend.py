@@ -1,0 +1,210 @@
+"""The same batch of simulations on MuJoCo Warp: one model, N worlds, on a CPU or a GPU.
+
+`WarpSim` has the interface of `BatchedSim` (qpos, qvel, ctrl, xfrc_applied, xpos, xmat,
+sensordata, actuator_force; expand / reset / forward / step), so an env written
+against one runs on the other unchanged. On the CPU its arrays are numpy views of the
+engine's own memory (no copies); on a GPU they are host mirrors, uploaded before and
+downloaded after each engine call, and `device_views()` gives the device arrays as
+torch tensors for code that stays on the device (the skin: `tactile_device.py`).
+
+What differs from the C engine, and why:
+
+* float32 arithmetic, and a solver tolerance of at least 1e-6 (MuJoCo Warp raises it for
+  float32), so trajectories drift apart from the C engine's by round-off, then chaos;
+* fixed buffers: at most `nconmax` contacts and `njmax` constraint rows per world. An
+  overflow would silently drop contacts, so `step` raises instead, naming the setting;
+* MuJoCo Warp never resets a diverged world (the C engine's autoreset, which the scenes
+  disable, is not implemented), so the flag is cleared on the engine's copy of the model.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+
+import mujoco
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+# Overflows that change the physics (lost contacts or constraint rows); iteration limits do not.
+_FATAL_OVERFLOWS = {1 << 0: "constraint rows (njmax)", 1 << 2: "broadphase pairs (nconmax)",
+                    1 << 3: "contacts (nconmax)", 1 << 6: "contact-sensor matches"}
+# State the env writes, and derived arrays it reads; (name in mujoco_warp.Data, trailing shape).
+_STATE = ("qpos", "qvel", "ctrl", "xfrc_applied")
+_DERIVED = ("xpos", "xmat", "sensordata", "actuator_force")
+
+
+class WarpUnavailable(RuntimeError):
+    """`sim.backend: warp` cannot run here: the package is missing or the model uses an unsupported feature."""
+
+
+def import_warp():
+    """(warp, mujoco_warp), or WarpUnavailable naming what to install."""
+    try:
+        import warp as wp
+        import mujoco_warp as mjw
+    except ImportError as err:
+        raise WarpUnavailable(f"sim.backend: warp needs the mujoco-warp package ({err}); "
+                              "install it with: pip install mujoco-warp==4.0.0") from err
+    wp.config.log_level = wp.LOG_WARNING  # no banner, no line per kernel module loaded
+    return wp, mjw
+
+
+def warp_model_copy(model: mujoco.MjModel) -> mujoco.MjModel:
+    """The model as MuJoCo Warp takes it: autoreset cleared (Warp never resets a world)."""
+    m = copy.copy(model)
+    m.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+    return m
+
+
+class WarpSim:
+    """A batch of `num_envs` worlds of `model` on MuJoCo Warp; see `BatchedSim` for the contract.
+
+    Args:
+        model: the compiled model (the same one the C backend steps).
+        num_envs: worlds.
+        device: a Warp device ("cpu", "cuda:0").
+        nconmax: contacts per world the buffers hold.
+        njmax: constraint rows per world.
+        max_speed: |qvel| above which an env counts as diverged.
+        mirror: keep host copies of the arrays (forced on a GPU; on the CPU, for tests).
+
+    Attributes: as `BatchedSim`; all (N, ...) numpy arrays, float32.
+    """
+
+    def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cpu", nconmax: int = 64,
+                 njmax: int = 256, max_speed: float = 1000.0, mirror: bool | None = None):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        wp, mjw = import_warp()
+        self._wp, self._mjw = wp, mjw
+        self.model = model
+        self.num_envs = num_envs
+        self.max_speed = max_speed
+        self.device = wp.get_device(device)
+        self.mirror = bool(self.device.is_cuda) if mirror is None else bool(mirror)
+        if self.device.is_cuda and not self.mirror:
+            raise ValueError("WarpSim on a GPU keeps host mirrors: mirror must not be False")
+        m = warp_model_copy(model)
+        with wp.ScopedDevice(self.device):
+            try:
+                self.wmodel = mjw.put_model(m)
+            except NotImplementedError as err:  # MuJoCo Warp names the feature: "['mjGEOM_SDF'] not supported."
+                raise WarpUnavailable(f"sim.backend: warp: the model uses a feature MuJoCo Warp does not "
+                                      f"support: {err}") from err
+            data = mujoco.MjData(m)
+            self.wdata = mjw.put_data(m, data, nworld=num_envs, nconmax=nconmax, njmax=njmax)
+        self.nconmax, self.njmax = nconmax, njmax
+        self._expanded: dict[str, tuple[object, np.ndarray]] = {}  # field -> (device array, view)
+        self._mask = wp.zeros(num_envs, dtype=bool, device=self.device)
+        for name in _STATE + _DERIVED + ("time",):
+            setattr(self, name, self._view(getattr(self.wdata, name)))
+        self.xmat = self.xmat.reshape(num_envs, model.nbody, 9)  # (N, nbody, 3, 3) -> C's layout
+
+    # --- arrays ------------------------------------------------------------------------
+    def _view(self, array) -> np.ndarray:
+        """A numpy view of a device array (CPU), or a host copy of it (mirror)."""
+        return array.numpy().copy() if self.mirror else array.numpy()
+
+    def _upload(self) -> None:
+        """Mirror mode: push the host copies of the state and model fields to the device."""
+        if not self.mirror:
+            return
+        for name in _STATE:
+            getattr(self.wdata, name).assign(getattr(self, name))
+        for array, host in self._expanded.values():
+            array.assign(host)
+
+    def _download(self, names=_STATE + _DERIVED + ("time",)) -> None:
+        if not self.mirror:
+            return
+        for name in names:
+            host = getattr(self, name)
+            host[...] = getattr(self.wdata, name).numpy().reshape(host.shape)
+
+    def device_views(self) -> dict[str, object]:
+        """Torch tensors over the device arrays (no copy): sensordata, xpos, xmat (N, nbody, 9), qpos, qvel."""
+        wp = self._wp
+        views = {name: wp.to_torch(getattr(self.wdata, name)) for name in ("sensordata", "xpos", "xmat", "qpos", "qvel")}
+        views["xmat"] = views["xmat"].reshape(self.num_envs, self.model.nbody, 9)
+        return views
+
+    def expand(self, field: str) -> np.ndarray:
+        """Per-env (N, ...) values of model field `field` (e.g. 'body_mass', 'opt.gravity'), writable.
+
+        The engine indexes every batchable model field by world modulo its leading size,
+        so swapping in an (N, ...) array makes the field per-env without recompiling.
+        """
+        if field in self._expanded:
+            return self._expanded[field][1]
+        owner, name = (self.wmodel.opt, field[4:]) if field.startswith("opt.") else (self.wmodel, field)
+        array = getattr(owner, name, None)
+        if array is None or not hasattr(array, "shape") or array.shape[0] != 1:
+            raise ValueError(f"model field {field!r} cannot be made per-env on MuJoCo Warp")
+        wp = self._wp
+        values = np.repeat(array.numpy(), self.num_envs, axis=0)
+        new = wp.array(values, dtype=array.dtype, device=self.device)
+        setattr(owner, name, new)
+        view = self._view(new)
+        self._expanded[field] = (new, view)
+        return view
+
+    def expanded(self, field: str) -> np.ndarray | None:
+        """The per-env values of `field` if `expand` made it per-env, else None."""
+        entry = self._expanded.get(field)
+        return None if entry is None else entry[1]
+
+    # --- engine calls ------------------------------------------------------------------
+    def _set_mask(self, ids) -> np.ndarray:
+        mask = np.zeros(self.num_envs, bool)
+        mask[ids] = True
+        self._mask.assign(mask)
+        return mask
+
+    def reset(self, ids: np.ndarray) -> None:
+        """Reset envs `ids` to the model defaults (write qpos etc. after, then `forward`)."""
+        self._upload()
+        self._set_mask(ids)
+        self._mjw.reset_data(self.wmodel, self.wdata, reset=self._mask)
+        self._download()
+
+    def forward(self, ids: np.ndarray | None = None) -> None:
+        """Recompute derived quantities (poses, contacts, sensors) of envs `ids` at their state.
+
+        The engine recomputes every world; the other envs' derived arrays are put back, so
+        they stay those of the start of their last substep, as with the C engine.
+        """
+        self._upload()
+        keep = None
+        if ids is not None:
+            keep = ~self._set_mask(ids)
+            saved = {name: getattr(self.wdata, name).numpy()[keep].copy() for name in _DERIVED}
+        self._mjw.forward(self.wmodel, self.wdata)
+        if keep is not None and keep.any():
+            for name, rows in saved.items():
+                array = getattr(self.wdata, name)
+                full = array.numpy()  # a view on the CPU, a copy from a GPU
+                full[keep] = rows
+                if self.mirror:
+                    array.assign(full)
+        self._download()
+
+    def step(self, nstep: int) -> np.ndarray:
+        """Advance every env by `nstep` physics steps; return a (N,) mask of diverged envs."""
+        self._upload()
+        for _ in range(nstep):
+            self._mjw.step(self.wmodel, self.wdata)
+        self._download()
+        self._check_overflow()
+        bad = ~(np.abs(self.qvel).max(1, initial=0.0) <= self.max_speed) | ~np.isfinite(self.qpos).all(1)
+        if bad.any():
+            log.warning("simulation diverged in envs %s; they will be reset", np.flatnonzero(bad).tolist())
+        return bad
+
+    def _check_overflow(self) -> None:
+        flags = np.bitwise_or.reduce(self.wdata.overflow.numpy())
+        lost = [what for bit, what in _FATAL_OVERFLOWS.items() if flags & bit]
+        if lost:
+            raise RuntimeError(f"MuJoCo Warp ran out of room for {', '.join(lost)} (per world: nconmax="
+                               f"{self.nconmax}, njmax={self.njmax}): raise sim.warp_nconmax / sim.warp_njmax")
