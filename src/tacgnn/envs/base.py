@@ -17,9 +17,8 @@ import numpy as np
 from tacgnn.envs import observation
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout
-from tacgnn.sim.batched import BatchedSim
+from tacgnn.sim.backend import make_sim, make_tactile
 from tacgnn.sim.scene import SimConfig, compile_with_skin
-from tacgnn.sim.tactile import TactileModel
 
 NUM_JOINTS = 16
 
@@ -36,8 +35,8 @@ class HandEnvBase:
         self.control_dt = control_dt
         self.num_envs = num_envs
         self.model = compile_with_skin(spec, skin, sim)
-        self.sim = BatchedSim(self.model, num_envs, nthread=sim.nthread)
-        self.tactile = TactileModel(skin, self.model)
+        self.sim = make_sim(self.model, num_envs, sim)  # BatchedSim, or WarpSim (sim.backend: warp)
+        self.tactile = make_tactile(skin, self.model, sim)
         lo, hi = np.asarray(hand.joint_ranges, dtype=np.float64).T
         self.joint_low, self.joint_high = lo, hi
         self.joint_qpos_adr = self.model.jnt_qposadr[:NUM_JOINTS].copy()
