@@ -168,3 +168,12 @@ def test_a_cap_layout_that_leaves_the_surface_is_refused():
     with pytest.raises(ConfigError, match="skin.tip.rows"):
         Patch(name="tip", body="index_distal", surface="capsule", rows=30, cols=6, pitch=0.0026,
               origin=(0, 0, 0.009), radius=0.012, length=0.02)
+
+
+@pytest.mark.parametrize("task, steps", [("hard", 5), ("hold", 50), ("simple", 0)])
+def test_success_waits_for_the_task_s_hold(task, steps):
+    env = BaodingEnv(BaodingConfig(num_envs=1, task=task))
+    reached, no_fall = np.array([True]), np.array([False])
+    results = [bool(env._success(reached, no_fall)[0]) for _ in range(steps + 1)]
+    assert results == [False] * steps + [True]
+    assert not env._success(reached, np.array([True]))[0], "a fall during the hold is no success"

@@ -27,10 +27,11 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Literal
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from tacgnn.config import check
+from tacgnn.config import ConfigError, check
 from tacgnn.envs import observation
 from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
 from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
@@ -47,6 +48,7 @@ ObsMode = Literal["groundtruth", "no_perception", "finger_torque", "noise_2", "n
 ABLATION_NOISE = {"noise_2": 0.002, "noise_4": 0.005, "noise_10": 0.010}
 BAODING_RANGES = FINGER_RANGES * 3 + THUMB_BAODING_RANGES
 BALLS = ("ball_0", "ball_1")
+SPAWN_TRIES = 20
 
 
 @dataclass(frozen=True)
@@ -70,9 +72,12 @@ class RandomizationConfig:
     gravity: tuple[float, float] = (7.0, 12.0)
     stiffness_scale: tuple[float, float] = (0.8, 1.2)
     damping_scale: tuple[float, float] = (0.8, 1.2)
+    torque_limit_scale: tuple[float, float] = (0.8, 1.2)
+    """Per-joint factor on `hand.torque_limit`: motors of one model differ."""
 
     def __post_init__(self) -> None:
-        for name in ("ball_mass", "friction_scale", "gravity", "stiffness_scale", "damping_scale"):
+        for name in ("ball_mass", "friction_scale", "gravity", "stiffness_scale", "damping_scale",
+                     "torque_limit_scale"):
             lo, hi = getattr(self, name)
             check(0 < lo <= hi, f"randomization.{name}", f"needs 0 < low <= high, got ({lo}, {hi})")
 
@@ -80,7 +85,9 @@ class RandomizationConfig:
 @dataclass(frozen=True)
 class BaodingConfig:
     num_envs: int = 64
-    task: Literal["simple", "middle", "hard"] = "simple"
+    task: Literal["simple", "middle", "hard", "hold"] = "simple"
+    """simple: reach the angle; middle: with disturbing kicks; hard: middle, then hold `hold_steps`;
+    hold: simple, then keep both balls in the hand `long_hold_steps` (1 s)."""
     obs_mode: ObsMode = "groundtruth"
     hand: HandConfig = field(default_factory=lambda: HandConfig(joint_ranges=BAODING_RANGES))
     skin: SkinLayout = field(default_factory=default_skin)
@@ -97,6 +104,8 @@ class BaodingConfig:
     """Ball centres at reset relative to the hand origin (world frame, m)."""
     spawn_noise: float = 0.01
     """Uniform +- noise (m) on each ball's x and y at reset."""
+    spawn_clearance: float = 0.001
+    """Least gap (m) between a spawned ball and the other ball or any link; closer draws are redrawn."""
     initial_joint_pos: tuple[float, ...] = (
         -0.15, 0.9, 0.9, 0.6, 0.0, 0.9, 0.9, 0.6, 0.15, 0.9, 0.9, 0.6, 0.8, 0.2, 0.85, 0.5)
     """A cupped pose: index and ring turned towards the middle so the balls cannot roll off."""
@@ -109,6 +118,9 @@ class BaodingConfig:
     disturbance_std: float = 0.1
     """Std (N) of the disturbing force's magnitude on each ball, middle and hard tasks."""
     hold_steps: int = 5
+    """Steps both balls must stay in the hand after the angle on the Hard task (the paper's 5)."""
+    long_hold_steps: int = 50
+    """... and on the 'hold' task: 1 s at 50 Hz, long enough that a flick past the angle fails."""
     fall_height: tuple[float, float] = (0.0, 0.065)
     """A ball has fallen when its centre's height above the palm plane leaves this band (m)
     (at rest it is 0.037): lifting a ball by more than one radius ends the episode, so a
@@ -137,6 +149,7 @@ class BaodingConfig:
         check(self.disturbance_interval >= 1, "disturbance_interval", "must be >= 1")
         check(self.disturbance_std >= 0, "disturbance_std", "must be >= 0")
         check(self.hold_steps >= 0, "hold_steps", "must be >= 0")
+        check(self.long_hold_steps >= 0, "long_hold_steps", "must be >= 0")
         check(self.fall_height[0] < self.fall_height[1], "fall_height", "needs low < high")
         check(self.spawn_noise >= 0 and self.joint_noise >= 0, "spawn_noise", "noise must be >= 0")
         check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
@@ -170,10 +183,17 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.ball_body = np.array([m.body(b).id for b in BALLS])
         self.ball_qpos_adr = np.array([m.joint(f"{b}_free").qposadr[0] for b in BALLS])
         self.ball_dof_adr = np.array([m.joint(f"{b}_free").dofadr[0] for b in BALLS])
+        self.ball_geom = np.array([m.geom(f"{b}_geom").id for b in BALLS])
+        self._scratch = mujoco.MjData(m)  # checks spawn points for overlaps
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
         self._spawn = np.array(cfg.spawn_offsets, dtype=np.float64)  # (2, 3) ball centres at reset
         self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
+        start = m.qpos0.copy()
+        start[self.joint_qpos_adr] = self.initial_ctrl
+        if self._spawn_overlaps(self._place_balls(start, np.zeros((len(BALLS), 2)))):
+            raise ConfigError("config keys 'spawn_offsets' / 'initial_joint_pos': at the noise-free start "
+                              "the balls overlap each other or the hand")
 
         n = cfg.num_envs
         self.episode_steps = np.zeros(n, np.int64)
@@ -287,6 +307,52 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         for g, s in zip(self._env_rngs, state["envs"]):
             g.bit_generator.state = s
 
+    # --- state for exact resume --------------------------------------------------------
+    # Per-env arrays beyond the physics that `state_dict` saves (a resume test fails if one is missed).
+    EPISODE_STATE = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action", "perceived_balls")
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything that lets this batch continue bit for bit (numpy copies and plain data).
+
+        The MuJoCo batch keeps each env's whole integration state (positions, velocities,
+        controls, applied forces, solver warm start) in one row of ``batch.state``; model
+        fields made per-env (domain randomisation) are saved too, then the per-env episode
+        state (`EPISODE_STATE`) and the random streams.
+        """
+        from mujoco import batch as mjbatch  # loaded with the sim already
+
+        batch = self.sim.batch
+        fields = {name: np.array(values) for name in mjbatch.MODEL_FIELDS
+                  if (values := batch.expanded(name)) is not None}
+        return {"sim_state": batch.state.copy(), "model_fields": fields,
+                "buffers": {name: getattr(self, name).copy() for name in self.EPISODE_STATE},
+                "rng": self.rng_state()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what `state_dict` saved, into an env built from the same config.
+
+        Derived fields (xpos, sensors) stay stale until the next step recomputes them; a step
+        reads none of them before it does, and calling forward() here would not be
+        guaranteed to leave the state (warm start) untouched.
+        """
+        batch = self.sim.batch
+        if tuple(state["sim_state"].shape) != batch.state.shape:
+            raise ValueError(f"saved env state has shape {tuple(state['sim_state'].shape)}, "
+                             f"this env's is {batch.state.shape} (different num_envs or model)")
+        unknown = sorted(set(state["buffers"]) - set(self.EPISODE_STATE))
+        if unknown:
+            raise ValueError(f"saved env state has buffers this env does not know: {unknown}")
+        missing = [name for name in self.EPISODE_STATE if name not in state["buffers"]]
+        if missing:  # a checkpoint of an older version
+            log.warning("saved env state lacks %s (older version): they restart from their reset values, "
+                        "so this resume is not bit-for-bit", missing)
+        batch.state[...] = state["sim_state"]
+        for name, values in state["model_fields"].items():
+            self.sim.expand(name)[...] = values
+        for name, values in state["buffers"].items():
+            getattr(self, name)[...] = values
+        self.set_rng_state(state["rng"])
+
     # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
@@ -310,10 +376,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         qpos = sim.qpos[ids]
         qpos[:, self.joint_qpos_adr] = q0
         shift = cfg.spawn_noise * (2 * u[:, NUM_JOINTS:k] - 1).reshape(-1, len(BALLS), 2)
-        for b, adr in enumerate(self.ball_qpos_adr):
-            qpos[:, adr:adr + 3] = self._spawn[b]
-            qpos[:, adr:adr + 2] += shift[:, b]
-            qpos[:, adr + 3:adr + 7] = (1.0, 0.0, 0.0, 0.0)
+        for row, env_id in enumerate(ids):
+            qpos[row] = self._clear_spawn(qpos[row], shift[row], env_id)
         sim.qpos[ids] = qpos
         sim.qvel[ids] = 0.0
         sim.ctrl[ids] = q0
@@ -325,6 +389,35 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.vec_angle[ids] = self._ball_vector_angle(ids)
         self.hold_count[ids] = -1
         self.perceived_balls[ids] = self._spawn.ravel()  # where the balls are put
+
+    def _place_balls(self, qpos: np.ndarray, shift: np.ndarray) -> np.ndarray:
+        for b, adr in enumerate(self.ball_qpos_adr):
+            qpos[adr:adr + 3] = self._spawn[b]
+            qpos[adr:adr + 2] += shift[b]
+            qpos[adr + 3:adr + 7] = (1.0, 0.0, 0.0, 0.0)
+        return qpos
+
+    def _clear_spawn(self, qpos: np.ndarray, shift: np.ndarray, env_id: int) -> np.ndarray:
+        """`qpos` with the balls placed at the spawn points plus `shift` (2, 2), redrawn from the
+        env's stream while a ball would overlap the other ball or a link (at most
+        `SPAWN_TRIES` draws; then the noise-free spawn points, which clear the hand at
+        construction). A ball that starts inside a link is shot out by the contact solver."""
+        for _ in range(SPAWN_TRIES):
+            qpos = self._place_balls(qpos, shift)
+            if not self._spawn_overlaps(qpos):
+                return qpos
+            shift = self.config.spawn_noise * (2 * self._env_rngs[env_id].random((len(BALLS), 2)) - 1)
+        return self._place_balls(qpos, np.zeros((len(BALLS), 2)))
+
+    def _spawn_overlaps(self, qpos: np.ndarray) -> bool:
+        """Whether a ball touches (within `spawn_clearance`) the other ball or a link at `qpos`."""
+        m, d = self.model, self._scratch
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        geoms = d.contact.geom[:d.ncon]
+        with_ball = np.isin(geoms, self.ball_geom).any(axis=1)
+        return bool((d.contact.dist[:d.ncon][with_ball] < self.config.spawn_clearance).any())
 
     # --- step --------------------------------------------------------------------------
     def step(self, actions: np.ndarray):
@@ -394,7 +487,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def _apply_disturbances(self) -> None:
         cfg, xfrc = self.config, self.sim.xfrc_applied
         xfrc[:] = 0.0
-        if cfg.task == "simple":
+        if cfg.task in ("simple", "hold"):
             return
         kick = (self.episode_steps % cfg.disturbance_interval == 0) & (self.episode_steps > 0)
         ids = np.flatnonzero(kick)
@@ -428,12 +521,14 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return out.any(axis=1)
 
     def _success(self, reached: np.ndarray, fall: np.ndarray) -> np.ndarray:
-        if self.config.task != "hard":
+        cfg = self.config
+        if cfg.task not in ("hard", "hold"):
             return reached & ~fall
         holding = self.hold_count >= 0
         self.hold_count[holding] += 1
         self.hold_count[reached & ~holding] = 0
-        return (self.hold_count >= self.config.hold_steps) & ~fall
+        steps = cfg.hold_steps if cfg.task == "hard" else cfg.long_hold_steps
+        return (self.hold_count >= steps) & ~fall
 
     def _reward_terms(self, d_angle, actions, success, fall, timeout) -> dict[str, np.ndarray]:
         w = self.config.reward
@@ -489,23 +584,31 @@ def _assign_obs(obs, ids, new) -> None:
         obs[ids] = new
 
 
-RANDOMIZED_DRAWS = len(BALLS) + 2 + 2 * NUM_JOINTS  # uniforms per reset: ball masses, friction, gravity, gains, damping
+RANDOMIZED_DRAWS = len(BALLS) + 2 + 3 * NUM_JOINTS  # uniforms per reset: ball masses, friction, gravity,
+# then per joint gains, damping and torque limits
 
 
 def randomize(env: BaodingEnv, ids: np.ndarray, u: np.ndarray) -> None:
     """Set the physics of envs `ids` from uniforms `u` (len(ids), RANDOMIZED_DRAWS) in [0, 1),
-    mapped onto the config's randomisation ranges."""
+    mapped onto the config's randomisation ranges.
+
+    Friction is scaled on every geom; the balls' geoms have contact priority, so the balls'
+    scaled friction is what their contacts with the hand use.
+    """
     r, cfg, sim, model = env.config.randomization, env.config, env.sim, env.model
     nb = len(env.ball_body)
-    columns = np.cumsum([0, nb, 1, 1, NUM_JOINTS, NUM_JOINTS])
-    ball_mass, friction_scale, gravity, stiffness_scale, damping_scale = (
+    columns = np.cumsum([0, nb, 1, 1, NUM_JOINTS, NUM_JOINTS, NUM_JOINTS])
+    ball_mass, friction_scale, gravity, stiffness_scale, damping_scale, torque_scale = (
         lo + (hi - lo) * u[:, a:b] for (lo, hi), a, b in zip(
-            (r.ball_mass, r.friction_scale, r.gravity, r.stiffness_scale, r.damping_scale), columns[:-1], columns[1:]))
+            (r.ball_mass, r.friction_scale, r.gravity, r.stiffness_scale, r.damping_scale,
+             r.torque_limit_scale), columns[:-1], columns[1:]))
     sim.expand("body_mass")[np.ix_(ids, env.ball_body)] = ball_mass
     sim.expand("body_inertia")[np.ix_(ids, env.ball_body)] = (0.4 * cfg.ball_radius**2 * ball_mass)[..., None]
     sim.expand("geom_friction")[ids, :, 0] = model.geom_friction[:, 0] * friction_scale
     sim.expand("opt.gravity")[ids] = np.concatenate([np.zeros((len(ids), 2)), -gravity], axis=1)
-    kp = cfg.hand.stiffness * stiffness_scale
+    kp = np.asarray(cfg.hand.joint_stiffness()) * stiffness_scale
     sim.expand("actuator_gainprm")[ids, :, 0] = kp
     sim.expand("actuator_biasprm")[ids, :, 1] = -kp
-    sim.expand("dof_damping")[np.ix_(ids, env.joint_dof_adr)] = cfg.hand.damping * damping_scale
+    sim.expand("dof_damping")[np.ix_(ids, env.joint_dof_adr)] = np.asarray(cfg.hand.joint_damping()) * damping_scale
+    limit = np.asarray(cfg.hand.joint_torque_limit()) * torque_scale
+    sim.expand("actuator_forcerange")[ids] = np.stack([-limit, limit], axis=-1)

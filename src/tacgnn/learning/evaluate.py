@@ -1,6 +1,6 @@
 """Success rate of a trained policy on a Baoding task, with a 95 % confidence interval.
 
-    python -m tacgnn.learning.evaluate runs/gt/model_005000.pt --task middle --episodes 500
+    tacgnn evaluate runs/gt/model_005000.pt --task middle --episodes 500
 
 `--perception FILE` runs the policy on another perception's ball positions (a perception
 checkpoint, or the perception inside another blind policy): a ground-truth policy made
@@ -25,12 +25,16 @@ from typing import Any, Callable, Literal
 
 import numpy as np
 
-from tacgnn.config import override, parse_overrides, to_dict
+from tacgnn.config import ConfigError, override, parse_overrides, to_dict
 from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.files import FileProblem, atomic_write_text
+from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
-from tacgnn.learning.ppo import load_perception, load_policy
+from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.train import load_checkpoint as load_perception_checkpoint
+
+TASKS = ("simple", "middle", "hard", "hold")  # the paper's three, and Simple with a 1 s hold
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -83,9 +87,11 @@ def seed_bootstrap_difference(
 def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
     """The frozen perception in `path`: a `train-perception` checkpoint for the Baoding balls,
     or the perception a 'perceived' policy checkpoint was trained with."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"perception file not found: {path}")
     try:
-        payload = load_perception_checkpoint(path)  # FileNotFoundError if missing
-    except ValueError:
+        payload = load_perception_checkpoint(path)
+    except (ValueError, FileProblem):
         payload = None  # not a perception checkpoint: perhaps a policy
     if payload is not None:
         model = PerceptionModelConfig(name=payload["config"]["model"]["name"])
@@ -93,14 +99,14 @@ def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
         return OnlinePerception(cfg, skin)
     try:
         perception = load_perception(path)
-    except ValueError as err:
-        raise ValueError(f"{path}: neither a perception checkpoint nor a policy checkpoint ({err})") from None
+    except (ValueError, FileProblem) as err:
+        raise ckpt.CheckpointError(f"{path}: neither a perception checkpoint nor a policy checkpoint ({err})") from None
     if perception is None:
-        raise ValueError(f"{path}: a policy trained without a perception (not obs_mode 'perceived')")
+        raise ckpt.CheckpointError(f"{path}: a policy trained without a perception (not obs_mode 'perceived')")
     return perception
 
 
-def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] = "simple", episodes: int = 100,
+def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "hold"] = "simple", episodes: int = 100,
              num_envs: int = 64, seed: int = 0,
              perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
              env_overrides: dict[str, Any] | None = None, perception_from: str | Path | None = None) -> dict:
@@ -114,21 +120,30 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
     Returns success_rate, mean_steps_to_success (NaN without successes), ci95 (Wilson) of
     the success rate, episodes, plus fall_rate and mean_final_angle_deg.
     """
-    if task not in ("simple", "middle", "hard"):
-        raise ValueError(f"task must be 'simple', 'middle' or 'hard', got {task!r}")
-    if episodes < 1 or num_envs < 1:
-        raise ValueError("episodes and num_envs must be >= 1")
-    policy, env_cfg = load_policy(checkpoint)
+    if task not in TASKS:
+        raise ConfigError(f"task must be one of {list(TASKS)}, got {task!r}")
+    if episodes < 1:
+        raise ConfigError(f"episodes must be >= 1, got {episodes}")
+    if num_envs < 1:
+        raise ConfigError(f"num_envs must be >= 1, got {num_envs}")
+    # configs first: a policy that cannot act in the requested env is named before any tensor exists
+    data = ckpt.load_policy_file(checkpoint)
+    n = min(num_envs, episodes)
+    env_cfg = replace(ckpt.stored_env_config(data, checkpoint), task=task, num_envs=n, seed=seed)
+    env_cfg = override(env_cfg, env_overrides or {})
+    ckpt.check_policy_fits(data, env_cfg, checkpoint)
     if perception_from is not None:
         if env_cfg.obs_mode not in ("groundtruth", "perceived"):
-            raise ValueError(f"{checkpoint}: a policy of obs_mode '{env_cfg.obs_mode}' does not read ball "
+            raise ckpt.CheckpointError(f"{checkpoint}: a policy of obs_mode '{env_cfg.obs_mode}' does not read ball "
                              "positions; --perception needs a 'groundtruth' or 'perceived' policy")
         perception = perception_from_file(perception_from, to_dict(env_cfg.skin))
         env_cfg = replace(env_cfg, obs_mode="perceived", tactile=True)
     if perception is None and env_cfg.obs_mode == "perceived":
         perception = load_perception(checkpoint)
-    n = min(num_envs, episodes)
-    env_cfg = override(replace(env_cfg, task=task, num_envs=n, seed=seed), env_overrides or {})
+    if isinstance(perception, OnlinePerception) and perception.readings.shape[1] != env_cfg.skin.num_taxels:
+        raise ckpt.CheckpointError(f"the perception reads {perception.readings.shape[1]} taxels, "
+                         f"the env's skin has {env_cfg.skin.num_taxels}")
+    policy, _ = load_policy(checkpoint)
     env = BaodingEnv(env_cfg, perception=perception)
     obs, _ = env.reset(seed=seed)
 
@@ -158,10 +173,11 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard"] =
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Evaluate a PPO checkpoint on the Baoding tasks (Table III).")
+def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> int:
+    """`tacgnn evaluate`; user errors raise (ConfigError, CheckpointError, OSError), for the CLI to report."""
+    parser = parser_class(prog="tacgnn evaluate", description="Evaluate a PPO checkpoint on the Baoding tasks (Table III).")
     parser.add_argument("checkpoint", type=Path)
-    parser.add_argument("--task", default="all", choices=("simple", "middle", "hard", "all"))
+    parser.add_argument("--task", default="all", choices=(*TASKS, "all"))
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
@@ -171,8 +187,14 @@ def main(argv: list[str] | None = None) -> int:
                              "(tacgnn train-perception) or a blind policy checkpoint")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="env config changes for the evaluation, e.g. hand.stiffness=2.0 ball_mass=0.25")
-    args = parser.parse_args(argv)
-    tasks = ("simple", "middle", "hard") if args.task == "all" else (args.task,)
+    return _evaluate_command(parser.parse_args(argv))
+
+
+def _evaluate_command(args: argparse.Namespace) -> int:
+    for flag, value in (("--episodes", args.episodes), ("--envs", args.envs)):
+        if value < 1:
+            raise ConfigError(f"{flag} must be >= 1, got {value}")
+    tasks = TASKS if args.task == "all" else (args.task,)
     changes = parse_overrides(args.set)
     results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed, env_overrides=changes,
                         perception_from=args.perception) for task in tasks]
@@ -188,6 +210,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['task']:8s} {100 * r['success_rate']:7.1f}% {100 * lo:5.1f}-{100 * hi:5.1f}% "
               f"{r['mean_steps_to_success']:6.1f} {100 * r['fall_rate']:5.1f}%")
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(results if len(results) > 1 else results[0], indent=2))
+        try:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise FileProblem(f"cannot create the folder of {args.out}: {err.strerror or err}") from err
+        atomic_write_text(args.out, json.dumps(results if len(results) > 1 else results[0], indent=2))
     return 0
