@@ -9,7 +9,7 @@ import time
 
 import torch
 
-from tacgnn.learning.ppo import load_checkpoint
+from tacgnn.learning.checkpoint import load_checkpoint
 from tacgnn.perception.train import default_model_config, make_model
 
 
@@ -38,7 +38,8 @@ def main() -> None:
         import io
 
         from tacgnn.envs.baoding import BaodingConfig
-        from tacgnn.learning.ppo import PPOConfig, make_runner
+        from tacgnn.learning.config import PPOConfig
+        from tacgnn.learning.runner import make_runner
         from tacgnn.learning.rsl_env import RslBaodingEnv
 
         with contextlib.redirect_stdout(io.StringIO()):  # rsl_rl prints the models

@@ -17,7 +17,9 @@ import time
 import torch
 
 from tacgnn.envs.baoding import BaodingConfig
-from tacgnn.learning.ppo import PPOConfig, make_runner, seed_everything
+from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.runner import make_runner
+from tacgnn.learning.train import seed_everything
 from tacgnn.learning.rsl_env import RslBaodingEnv
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.learning.evaluate import evaluate
-from tacgnn.learning.ppo import load_perception, load_policy
+from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.perception.models import TacGNN
 
 

@@ -11,7 +11,8 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from tacgnn.learning.ppo import list_checkpoints, load_checkpoint, train
+from tacgnn.learning.checkpoint import list_checkpoints, load_checkpoint
+from tacgnn.learning.train import train
 
 from test_ppo import ENV, ppo
 
@@ -20,7 +21,7 @@ ITERATIONS = 10
 CHILD = """
 import sys
 from dataclasses import replace
-from tacgnn.learning.ppo import train
+from tacgnn.learning.train import train
 sys.path.insert(0, {tests!r})
 from test_ppo import ENV, ppo
 train(ENV, replace(ppo({iterations}), save_interval=1), {run_dir!r}, resume={resume})
@@ -72,3 +73,105 @@ def test_kill_9_during_training_then_resume_equals_uninterrupted(tmp_path):
         for name, tensor in a[key].items():
             assert torch.equal(tensor, b[key][name]), f"{key}.{name}"
     assert torch.equal(a["env_state"]["sim_state"], b["env_state"]["sim_state"])
+
+
+# --- perceived mode: the perception's frames and the env's perceived balls resume too ----------
+def _perceived_run(run_dir, iterations, resume=False):
+    """A tiny perceived-mode run: 4 envs, 12-step episodes with kicks, tiny networks, a 64-frame
+    perception buffer that wraps, a warm-up round, a perception update every 2 iterations."""
+    from tacgnn.envs.baoding import BaodingConfig
+    from tacgnn.learning.config import PPOConfig
+    from tacgnn.learning.online_perception import OnlinePerceptionConfig
+    from tacgnn.perception.models import PerceptionModelConfig
+
+    env = BaodingConfig(obs_mode="perceived", task="middle", max_episode_steps=12)
+    ppo = PPOConfig(num_envs=4, num_steps_per_env=4, max_iterations=iterations, save_interval=100,
+                    num_learning_epochs=2, num_mini_batches=2, actor_hidden_dims=(16,), critic_hidden_dims=(16,))
+    loop = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), update_every_steps=8, epochs=1,
+                                  buffer_size=64, batch_size=16, warmup_rounds=1)
+    return train(env, ppo, run_dir, resume=resume, perception_cfg=loop)
+
+
+def _assert_identical(a, b, where="checkpoint"):
+    """Deep equality of checkpoint trees, tensors bit for bit."""
+    assert type(a) is type(b), where
+    if isinstance(a, dict):
+        assert list(a) == list(b), where
+        for key in a:
+            _assert_identical(a[key], b[key], f"{where}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_identical(x, y, f"{where}[{i}]")
+    elif isinstance(a, torch.Tensor):
+        assert a.dtype == b.dtype and a.shape == b.shape and torch.equal(a, b), where
+    else:
+        assert a == b, where
+
+
+def test_perceived_mode_resume_is_bit_identical(tmp_path, monkeypatch):
+    """Reliability test 5 with the perception in the loop: 3 iterations, stop, 3 more == 6 straight.
+
+    Every observation the policy saw after the stop, and everything in the final checkpoint
+    (weights, optimisers, normalisers, env state with the perceived balls, the perception with
+    its generator) and the perception's frame buffer, are equal bit for bit. The stop falls
+    between two perception updates (every 2 iterations), so their schedule must not restart."""
+    from tacgnn.learning.checkpoint import frames_path
+    from tacgnn.learning.rsl_env import RslBaodingEnv
+
+    seen = []
+    step = RslBaodingEnv.step
+
+    def recording_step(self, actions):
+        out = step(self, actions)
+        seen.append(out[0]["policy"].clone())
+        return out
+
+    monkeypatch.setattr(RslBaodingEnv, "step", recording_step)
+    straight = _perceived_run(tmp_path / "straight", 6)
+    straight_obs, seen[:] = list(seen), []
+    assert _perceived_run(tmp_path / "resumed", 3).name == "model_000003.pt"
+    seen.clear()
+    resumed = _perceived_run(tmp_path / "resumed", 6, resume=True)
+    assert len(seen) == 3 * 4 and len(straight_obs) > len(seen)
+    for i, (a, b) in enumerate(zip(straight_obs[-len(seen):], seen)):
+        assert torch.equal(a, b), f"observation of step {i} after the resume"
+    a, b = load_checkpoint(straight), load_checkpoint(resumed)
+    assert b["iteration"] == 6 and b["perception"]["updates"] == a["perception"]["updates"] == 1 + 3
+    _assert_identical(a, b)
+    frames = [torch.load(frames_path(run, 6), weights_only=True) for run in (tmp_path / "straight", tmp_path / "resumed")]
+    assert frames[0]["frames"]["size"] == 64  # the buffer wrapped
+    _assert_identical(*frames, where="frames")
+    # only the newest checkpoint keeps its frames
+    assert sorted(p.name for p in (tmp_path / "resumed").glob("perception_frames_*")) == ["perception_frames_000006.pt"]
+
+
+def test_env_state_dict_restores_every_per_env_array():
+    """BaodingEnv.state_dict -> a fresh env: every per-env array of the env equals the original's
+    (so a new one left out of EPISODE_STATE fails here), and both then step identically."""
+    from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig
+
+    def perception(tactile, taxel_pos):  # deterministic, input-dependent, different for the two balls
+        w = tactile[..., None] + 1e-3
+        centre = (w * taxel_pos).sum(1) / w.sum(1)
+        return np.concatenate([centre, centre[:, ::-1]], axis=1)
+
+    cfg = BaodingConfig(num_envs=3, obs_mode="perceived", task="middle", max_episode_steps=7,
+                        randomization=RandomizationConfig(enabled=True))
+    a, b = BaodingEnv(cfg, perception=perception), BaodingEnv(cfg, perception=perception)
+    rng = np.random.default_rng(0)
+    a.reset(seed=1)
+    b.reset(seed=2)
+    for _ in range(9):  # past a reset and a kick
+        a.step(rng.uniform(-1, 1, (3, 16)))
+    a.hold_count[1] = 2  # as if holding at the goal (hard task), so that it differs from a fresh env's
+    b.load_state_dict(a.state_dict())
+    per_env = [k for k, v in vars(a).items() if isinstance(v, np.ndarray) and v.ndim and len(v) == 3]
+    assert {"episode_steps", "perceived_balls", "hold_count"} <= set(per_env)
+    for key in per_env:
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key
+    assert a.rng_state() == b.rng_state()
+    for t in range(12):
+        actions = rng.uniform(-1, 1, (3, 16))
+        (oa, ra, *_), (ob, rb, *_) = a.step(actions), b.step(actions)
+        assert np.array_equal(oa, ob) and np.array_equal(ra, rb), f"step {t}"

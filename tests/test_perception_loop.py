@@ -7,7 +7,10 @@ from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning.evaluate import evaluate
 from tacgnn.learning.online_perception import OnlinePerceptionConfig
-from tacgnn.learning.ppo import PPOConfig, load_checkpoint, load_perception, train
+from tacgnn.learning.checkpoint import load_checkpoint
+from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.policy import load_perception
+from tacgnn.learning.train import train
 from tacgnn.perception.models import PerceptionModelConfig
 
 
@@ -67,7 +70,7 @@ def test_perceived_mode_needs_a_perception_config(tmp_path):
 
 
 def test_export_policy_is_small_and_acts_like_the_checkpoint(tmp_path):
-    from tacgnn.learning.ppo import export_policy, load_policy
+    from tacgnn.learning.policy import export_policy, load_policy
 
     train(BaodingConfig(), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "gt")
     ckpt = tmp_path / "gt" / "model_000001.pt"

@@ -13,8 +13,12 @@ from tensordict import TensorDict
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.learning.evaluate import evaluate, seed_bootstrap_difference, wilson_interval
-from tacgnn.learning.ppo import (CheckpointError, PPOConfig, list_checkpoints, load_checkpoint, load_policy,
-                                 make_runner, seed_everything, train)
+from tacgnn.files import FileProblem
+from tacgnn.learning.checkpoint import CheckpointError, list_checkpoints, load_checkpoint
+from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.policy import load_policy
+from tacgnn.learning.runner import Runner, make_runner
+from tacgnn.learning.train import seed_everything, train
 from tacgnn.learning.rsl_env import RslBaodingEnv
 
 # Short episodes so that resets, time-outs and the episode log all happen in a few iterations.
@@ -206,13 +210,16 @@ def test_truncated_checkpoint_is_named(run2, tmp_path):
     shutil.copytree(run2, tmp_path / "run")
     path = tmp_path / "run" / "model_000002.pt"
     path.write_bytes(path.read_bytes()[:1000])
-    with pytest.raises(CheckpointError, match="model_000002.pt"):
+    with pytest.raises(FileProblem, match="model_000002.pt"):
         load_checkpoint(path)
-    with pytest.raises(CheckpointError, match="model_000002.pt"):
+    with pytest.raises(FileProblem, match="model_000002.pt"):
         train(ENV, ppo(4), tmp_path / "run", resume=True)
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(CheckpointError, match="junk.pt"):
+    with pytest.raises(FileProblem, match="junk.pt"):
         load_checkpoint(tmp_path / "junk.pt")
+    torch.save({"weights": torch.zeros(2)}, tmp_path / "foreign.pt")  # readable, but not ours
+    with pytest.raises(CheckpointError, match="foreign.pt"):
+        load_checkpoint(tmp_path / "foreign.pt")
 
 
 def _assert_same(a, b, where="checkpoint"):
@@ -240,13 +247,11 @@ def test_save_load_save_gives_identical_bytes(run2, tmp_path):
     the pickle memoises equal strings by object identity, which a load does not keep."""
     import zipfile
 
-    from tacgnn.learning.ppo import _Runner
-
     path = run2 / "model_000002.pt"
     cfg, p = replace(ENV, num_envs=8), ppo(2)
-    runner = _Runner(RslBaodingEnv(cfg, p.reward_scale, p.bootstrap_time_outs), cfg, p, None)
+    runner = Runner(RslBaodingEnv(cfg, p.reward_scale, p.bootstrap_time_outs), cfg, p, None)
     runner.restore(load_checkpoint(path))
-    runner.write_checkpoint(tmp_path, 2)
+    runner.save_checkpoint(tmp_path)
     again = tmp_path / "model_000002.pt"
 
     def members(file):
@@ -281,7 +286,7 @@ def test_non_finite_gradient_rolls_the_update_back_and_names_it(run2, tmp_path, 
 
     monkeypatch.setattr(PPO, "update", recording_update)
     monkeypatch.setattr(torch.nn.utils, "clip_grad_norm_", poisoned_clip)
-    with pytest.raises(FloatingPointError, match=r"PPO update 4 gave non-finite values \(actor .*rolled back.*model_000002"):
+    with pytest.raises(FloatingPointError, match=r"PPO update 4: non-finite gradient .*\(actor .*rolled back.*model_000002"):
         train(ENV, ppo(4), resumed, resume=True)
     alg, before = seen[-1]
     after = alg.save()
@@ -302,7 +307,7 @@ def test_failed_save_leaves_no_partial_file(run2, tmp_path, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr(torch, "save", broken_save)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(FileProblem, match="cannot write .*model_000003.pt"):
         train(ENV, ppo(3), tmp_path / "run", resume=True)
     assert [p.name for p in list_checkpoints(tmp_path / "run")] == ["model_000001.pt", "model_000002.pt"]
     assert not list((tmp_path / "run").glob(".*.tmp"))

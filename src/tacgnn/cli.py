@@ -81,7 +81,7 @@ def cmd_demo(args) -> int:
 
     from tacgnn.envs.baoding import BaodingEnv
     from tacgnn.learning.evaluate import evaluate
-    from tacgnn.learning.ppo import load_perception, load_policy
+    from tacgnn.learning.policy import load_perception, load_policy
 
     policy, env_cfg = load_policy(policy_file)
     perception = load_perception(policy_file)
@@ -210,15 +210,15 @@ def cmd_eval_perception(args) -> int:
 
 
 def cmd_train_policy(args) -> int:
-    from tacgnn.learning import ppo
+    from tacgnn.learning import train
 
-    return ppo.main(args.rest)
+    return train.main(args.rest, parser_class=_Parser)
 
 
 def cmd_evaluate(args) -> int:
     from tacgnn.learning import evaluate
 
-    return evaluate.main(args.rest)
+    return evaluate.main(args.rest, parser_class=_Parser)
 
 
 def _per_joint_arg(values: list[float], name: str):

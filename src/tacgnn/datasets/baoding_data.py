@@ -104,7 +104,7 @@ def record_shard(cfg: BaodingDataConfig, index: int,
 
 def policy_controller(cfg: BaodingDataConfig):
     """Drive the balls with a ground-truth policy: it sees the true ball positions, plus action noise."""
-    from tacgnn.learning.ppo import load_policy
+    from tacgnn.learning.policy import load_policy
 
     policy, policy_env = load_policy(cfg.policy_checkpoint)
     if policy_env.obs_mode != "groundtruth":

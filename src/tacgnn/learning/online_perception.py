@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from tacgnn.config import check, from_dict, to_dict
+from tacgnn.config import ConfigError, check, from_dict, to_dict
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.objectives import Objective
@@ -45,12 +45,13 @@ class OnlinePerceptionConfig:
     record_every: int = 1
     """Keep every k-th step's frames (neighbouring frames are near duplicates)."""
     threads: int = 1
+    """CPU threads for torch during perception updates."""
     match_balls: bool = True
     """Permutation-invariant loss over the two balls (True) or balls by identity (False)."""
     warmup_rounds: int = 0
     """Before PPO first updates the policy: rounds of (the starting policy acts on the perceived
     balls for `update_every_steps` env steps, then one perception update). Not in the paper;
-    see `tacgnn.learning.ppo._warm_up_perception`."""
+    see `tacgnn.learning.runner.Runner.warm_up_perception`."""
 
     def __post_init__(self) -> None:
         check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
@@ -59,6 +60,10 @@ class OnlinePerceptionConfig:
         check(self.buffer_size >= self.batch_size >= 1, "perception.buffer_size", "must be >= batch_size >= 1")
         check(self.record_every >= 1, "perception.record_every", "must be >= 1")
         check(self.warmup_rounds >= 0, "perception.warmup_rounds", "must be >= 0")
+        check(1 <= self.threads <= 1024, "perception.threads", f"must be in [1, 1024], got {self.threads}")
+        check(self.lr > 0, "perception.lr", f"must be positive, got {self.lr}")
+        check(self.weight_decay >= 0, "perception.weight_decay", f"must be >= 0, got {self.weight_decay}")
+        check(self.buffer_size <= 10_000_000, "perception.buffer_size", f"must be <= 10,000,000, got {self.buffer_size}")
 
 
 class OnlinePerception:
@@ -70,16 +75,17 @@ class OnlinePerception:
         if payload is not None:
             task = payload["config"].get("task")
             if task != "baoding":
-                raise ValueError(f"{cfg.pretrained}: a perception trained for the {task!r} task; "
-                                 "the Baoding env needs one that predicts ball positions ('baoding')")
+                raise ConfigError(f"perception.pretrained {cfg.pretrained}: a perception trained for the {task!r} "
+                                  "task; the Baoding env needs one that predicts ball positions ('baoding')")
             trained_on = payload.get("dataset", {}).get("num_taxels")
             if trained_on is not None and trained_on != num_taxels:
-                raise ValueError(f"{cfg.pretrained}: trained on a skin of {trained_on} taxels, "
-                                 f"this env's skin has {num_taxels}")
+                raise ConfigError(f"perception.pretrained {cfg.pretrained}: trained on a skin of {trained_on} "
+                                  f"taxels, this env's skin has {num_taxels}")
             # the checkpoint defines the architecture; the config only has to agree on the model kind
             stored = from_dict(PerceptionModelConfig, payload["config"]["model"])
             if stored.name != cfg.model.name:
-                raise ValueError(f"{cfg.pretrained}: a {stored.name} model, the config asks for {cfg.model.name}")
+                raise ConfigError(f"perception.pretrained {cfg.pretrained}: a {stored.name} model, "
+                                  f"perception.model.name asks for {cfg.model.name}")
             cfg = dataclasses.replace(cfg, model=stored)
         self.cfg = cfg
         model_cfg = dataclasses.replace(cfg.model, num_taxels=num_taxels)
@@ -158,12 +164,34 @@ class OnlinePerception:
         return self.objective.metrics(pred, self.labels[idx])["position_rmse_cm"]
 
     def state_dict(self) -> dict:
-        """Model and optimiser (not the buffer: ~200 MB; a resumed run refills it)."""
+        """Model, optimiser, counters and random stream; the frame buffer is `frames_state_dict`."""
         return {"config": to_dict(self.cfg), "model": self.model.state_dict(),
                 "optimizer": self.optim.state_dict(), "updates": self.updates,
-                "rest_positions_cm": self._rest}
+                "rest_positions_cm": self._rest, "steps_seen": self.steps_seen,
+                "generator": self._gen.get_state()}
 
     def load_state_dict(self, state: dict) -> None:
         self.model.load_state_dict(state["model"])
         self.optim.load_state_dict(state["optimizer"])
         self.updates = state["updates"]
+        if "generator" in state:  # checkpoints of older versions lack these; the resume is then not exact
+            self.steps_seen = state["steps_seen"]
+            self._gen.set_state(state["generator"])
+
+    def frames_state_dict(self) -> dict:
+        """The filled part of the frame buffer and its ring position (up to ~270 MB at 25,600 frames)."""
+        n = self.size
+        # torch.save writes a view's whole storage: copy a part, keep a full buffer as it is
+        filled = {name: t if n == len(t) else t[:n].clone() for name in ("readings", "positions", "labels", "joints")
+                  for t in [getattr(self, name)]}
+        return {"buffer_size": self.cfg.buffer_size, "size": n, "head": self.head, **filled}
+
+    def load_frames_state_dict(self, frames: dict) -> None:
+        if frames["buffer_size"] != self.cfg.buffer_size or frames["readings"].shape[1:] != self.readings.shape[1:]:
+            raise ValueError(f"saved frame buffer holds {frames['buffer_size']} frames of "
+                             f"{tuple(frames['readings'].shape[1:])}, this perception "
+                             f"{self.cfg.buffer_size} of {tuple(self.readings.shape[1:])}")
+        n = frames["size"]
+        for name in ("readings", "positions", "labels", "joints"):
+            getattr(self, name).zero_()[:n] = frames[name]
+        self.size, self.head = n, frames["head"]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
-import mujoco.batch
 import numpy as np
 import torch
 from rsl_rl.env import VecEnv
@@ -28,11 +27,6 @@ from tensordict import TensorDict
 
 from tacgnn.config import to_dict
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
-
-# Per-env state of BaodingEnv beyond the physics, saved with a checkpoint so that a resumed
-# run continues exactly where it stopped (the resume test fails if this list falls behind).
-_ENV_BUFFERS = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action")
-
 
 class RslBaodingEnv(VecEnv):
     """`BaodingEnv` as an rsl_rl `VecEnv` on the CPU.
@@ -135,23 +129,10 @@ class RslBaodingEnv(VecEnv):
 
     # --- exact resume ------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        """Everything a resumed run needs to continue this env bit for bit (tensors, plain data).
-
-        The MuJoCo batch keeps each env's whole integration state (positions, velocities,
-        controls, applied forces, solver warm start) in one row of ``batch.state``; model
-        fields made per-env (domain randomisation) are saved too.
-        """
-        batch = self.env.sim.batch
-        fields = {}
-        for name in mujoco.batch.MODEL_FIELDS:
-            values = batch.expanded(name)
-            if values is not None:
-                fields[name] = torch.from_numpy(np.array(values))
+        """Everything a resumed run needs to continue this env bit for bit (tensors, plain data):
+        the env's own state (`BaodingEnv.state_dict`), the last observations, the episode sums."""
         return {
-            "sim_state": torch.from_numpy(batch.state.copy()),
-            "model_fields": fields,
-            "buffers": {name: torch.from_numpy(getattr(self.env, name).copy()) for name in _ENV_BUFFERS},
-            "rng": self.env.rng_state(),  # plain dicts of ints and strings
+            **_to_torch(self.env.state_dict()),
             "obs": self._obs["policy"].clone(),
             **({"critic_obs": self._obs["critic"].clone()} if self.privileged_critic else {}),
             "episode_terms": {k: torch.from_numpy(v.copy()) for k, v in self._episode_terms.items()},
@@ -159,24 +140,26 @@ class RslBaodingEnv(VecEnv):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what `state_dict` saved, into an env built from the same config."""
-        batch = self.env.sim.batch
-        if tuple(state["sim_state"].shape) != batch.state.shape:
-            raise ValueError(f"saved env state has shape {tuple(state['sim_state'].shape)}, "
-                             f"this env's is {batch.state.shape} (different num_envs or model)")
-        batch.state[...] = state["sim_state"].numpy()
-        for name, values in state["model_fields"].items():
-            self.env.sim.expand(name)[...] = values.numpy()
-        for name, values in state["buffers"].items():
-            getattr(self.env, name)[...] = values.numpy()
-        self.env.set_rng_state(state["rng"])
         if self.privileged_critic and "critic_obs" not in state:
             raise ValueError("saved env state has no critic observations: it was trained without a privileged critic")
+        env_keys = ("sim_state", "model_fields", "buffers", "rng")
+        self.env.load_state_dict(_to_numpy({k: state[k] for k in env_keys}))
         critic = state["critic_obs"].numpy().copy() if self.privileged_critic else None
         self._obs = self._wrap(state["obs"].numpy().copy(), critic)
         self._episode_terms = {k: v.numpy().copy() for k, v in state["episode_terms"].items()}
-        # Derived fields (xpos, sensors) stay stale until the next step recomputes them; the
-        # step reads none of them before it does, and calling forward() here would not be
-        # guaranteed to leave the state (warm start) untouched.
+
+
+def _to_torch(tree: Any) -> Any:
+    """numpy arrays -> tensors in a nest of dicts (a checkpoint holds tensors, not numpy arrays)."""
+    if isinstance(tree, dict):
+        return {k: _to_torch(v) for k, v in tree.items()}
+    return torch.from_numpy(tree) if isinstance(tree, np.ndarray) else tree
+
+
+def _to_numpy(tree: Any) -> Any:
+    if isinstance(tree, dict):
+        return {k: _to_numpy(v) for k, v in tree.items()}
+    return tree.numpy() if isinstance(tree, torch.Tensor) else tree
 
 
 def _check_finite(obs: np.ndarray, reward: np.ndarray) -> None:

@@ -1,0 +1,90 @@
+"""A trained policy for acting: load it (with its perception), or export the small file the demo ships.
+
+`load_policy` and `load_perception` read a training checkpoint or an exported policy;
+evaluation, the demo, dataset recording and the real-hand controller all act through them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from rsl_rl.models import MLPModel
+from tensordict import TensorDict
+
+from tacgnn.config import ConfigError, from_dict
+from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.learning import checkpoint as ckpt
+from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
+
+
+def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], BaodingConfig]:
+    """The deterministic policy (mean action) of a checkpoint, and the env config it was trained on.
+
+    The policy maps (N, obs_dim) observations to (N, 16) float32 actions, normaliser included.
+    Configs and shapes are checked before the weights are loaded; a mismatch raises
+    CheckpointError naming the file.
+    """
+    data = ckpt.load_policy_file(path)
+    env_cfg = ckpt.stored_env_config(data, path)
+    try:
+        ppo_cfg = from_dict(PPOConfig, data["ppo_config"])
+    except ConfigError as err:
+        raise ckpt.CheckpointError(f"checkpoint {path}: its PPO config does not fit this code: {err}") from None
+    actor_cfg = dict(ppo_cfg.rsl_rl_cfg()["actor"])
+    actor_cfg.pop("class_name")
+    example = TensorDict({"policy": torch.zeros(1, data["obs_dim"])}, batch_size=[1])
+    actor = MLPModel(example, {"actor": ["policy"]}, "actor", data["num_actions"], **actor_cfg)
+    try:
+        actor.load_state_dict(data["actor_state_dict"])
+    except RuntimeError as err:  # the weights do not fit the network its own config describes
+        first = str(err).strip().splitlines()[0]
+        raise ckpt.CheckpointError(f"checkpoint {path}: actor weights do not fit its config ({first})") from None
+    actor.eval()
+    obs_dim = data["obs_dim"]
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        with torch.inference_mode():
+            x = torch.as_tensor(np.asarray(obs), dtype=torch.float32)
+            if x.ndim != 2 or x.shape[1] != obs_dim:
+                raise ValueError(f"policy {path} reads ({obs_dim},) observations, got shape {tuple(x.shape)}")
+            return actor(TensorDict({"policy": x}, batch_size=[x.shape[0]])).numpy()
+
+    return policy, env_cfg
+
+
+def load_perception(path: str | Path) -> OnlinePerception | None:
+    """The perception a 'perceived' policy was trained with (None for other observation modes)."""
+    data = ckpt.load_policy_file(path)
+    if "perception" not in data:
+        return None
+    state = data["perception"]
+    cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": ""})
+    perception = OnlinePerception(replace(cfg, buffer_size=cfg.batch_size), data["env_config"]["skin"])
+    perception.model.load_state_dict(state["model"])
+    perception.updates = state["updates"]
+    return perception
+
+
+def export_policy(path: str | Path, out: str | Path) -> Path:
+    """Write a small file with what acting needs (actor, configs, perception), not training state.
+
+    A training checkpoint holds the critic, the optimiser and the env state (~5 MB); the
+    exported policy is what the demo ships (well under 1 MB) and `load_policy` reads both.
+    """
+    data = ckpt.load_checkpoint(path)
+    slim = {"format_version": ckpt.FORMAT_VERSION, "kind": "policy", "iteration": data["iteration"],
+            **{k: data[k] for k in ckpt.POLICY_KEYS}}
+    if "perception" in data:
+        perception = dict(data["perception"])
+        for training_only in ("optimizer", "generator", "steps_seen"):
+            perception.pop(training_only, None)
+        slim["perception"] = perception
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ckpt.save(out, slim)
+    return out

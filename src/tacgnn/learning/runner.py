@@ -1,0 +1,205 @@
+"""The PPO training loop, with the perception learning beside it and checkpoints that resume exactly.
+
+One iteration, as `Runner.learn` runs it:
+
+    rollout, num_steps_per_env times:
+        act       a ~ pi(. | o) for every env, with V(o) and log pi(a | o) kept   (alg.act)
+        step      the envs advance one control step                                (env.step)
+        process   the transition goes into the rollout storage; on a time-out
+                  r += gamma V(o): truncation, not termination                     (alg.process_env_step)
+    returns   GAE: delta_t = r_t + gamma V(o_{t+1}) - V(o_t),
+              A_t = delta_t + gamma lam A_{t+1}, R_t = A_t + V(o_t)                (alg.compute_returns)
+    update    PPO epochs over mini-batches; a NaN or Inf is refused and rolled back (alg.update)
+    log       losses, episode statistics, timings (TensorBoard and the console)
+    perceive  in 'perceived' mode, every `perception_every` iterations: the perception
+              trains on the frames it recorded during the rollouts
+    save      a checkpoint after the first iteration, every save_interval and the last
+
+Iterations are counted from 1 as completed updates: ``model_000004.pt`` holds the state
+after 4 updates, and the perception updates after every iteration that is a multiple of
+`perception_every`, whatever iteration the run started or resumed at, so that a resumed
+run repeats an uninterrupted one bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+from rsl_rl.runners import OnPolicyRunner
+from rsl_rl.utils.logger import Logger
+
+from tacgnn.config import to_dict
+from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.learning import checkpoint as ckpt
+from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.guarded_ppo import GuardedPPO, NonFiniteUpdate
+from tacgnn.learning.online_perception import OnlinePerception
+from tacgnn.learning.rsl_env import RslBaodingEnv
+
+
+class Runner:
+    """PPO (`GuardedPPO`) on a `RslBaodingEnv`, logging with rsl_rl's logger, writing our checkpoints.
+
+    Attributes:
+        alg: the PPO algorithm (actor, critic, optimiser, rollout storage).
+        iteration: updates completed so far.
+        last_checkpoint: the newest checkpoint written or resumed from (None before one).
+        perception_every: iterations between perception updates (perceived mode).
+    """
+
+    def __init__(self, env: RslBaodingEnv, env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None,
+                 perception: OnlinePerception | None = None):
+        self.env, self.env_cfg, self.ppo_cfg = env, env_cfg, ppo_cfg
+        self.run_dir, self.perception = run_dir, perception
+        cfg = {**ppo_cfg.rsl_rl_cfg(), "multi_gpu": None}
+        self.alg: GuardedPPO = GuardedPPO.construct_algorithm(env.get_observations(), env, cfg, "cpu")
+        self.logger = Logger(log_dir=None if run_dir is None else str(run_dir), cfg=cfg, env_cfg=env.cfg,
+                             num_envs=env.num_envs, is_distributed=False, gpu_world_size=1, gpu_global_rank=0,
+                             device="cpu")
+        self.logger.git_status_repos = []  # else rsl_rl runs `git status`/`git diff` on the enclosing repo
+        self.iteration = 0
+        self.last_checkpoint: Path | None = None
+        steps = perception.cfg.update_every_steps if perception is not None else 1
+        self.perception_every = max(1, math.ceil(steps / ppo_cfg.num_steps_per_env))
+
+    # --- the loop ------------------------------------------------------------------------
+    def learn(self, until: int) -> None:
+        """Run iterations until `until` updates are complete."""
+        if self.logger.writer is None:
+            self.logger.init_logging_writer()
+        if self.perception is not None and self.iteration == 0 and self.perception.updates == 0:
+            self.warm_up_perception()
+        obs = self.env.get_observations()
+        self.alg.train_mode()
+        start = self.iteration
+        while self.iteration < until:
+            begin = time.time()
+            with torch.inference_mode():
+                for _ in range(self.ppo_cfg.num_steps_per_env):
+                    actions = self.alg.act(obs)
+                    obs, rewards, dones, extras = self.env.step(actions)
+                    self.alg.process_env_step(obs, rewards, dones, extras)
+                    self.logger.process_env_step(rewards, dones, extras)
+                self.alg.compute_returns(obs)
+            collected = time.time()
+            losses = self._update()
+            self.iteration += 1
+            self.logger.log(it=self.iteration - 1, start_it=start, total_it=until, collect_time=collected - begin,
+                            learn_time=time.time() - collected, loss_dict=losses,
+                            learning_rate=self.alg.learning_rate, action_std=self.alg.get_policy().output_std,
+                            rnd_weight=None)
+            if self.perception is not None and self.iteration % self.perception_every == 0:
+                self.update_perception()
+            if self.iteration == 1 or self.iteration % self.ppo_cfg.save_interval == 0 or self.iteration == until:
+                self.save_checkpoint()
+
+    def _update(self) -> dict[str, float]:
+        try:
+            return self.alg.update()
+        except NonFiniteUpdate as err:
+            raise FloatingPointError(f"PPO update {self.iteration + 1}: {err}. "
+                                     f"Last checkpoint: {self.last_checkpoint or 'none yet'}") from err
+
+    def close(self) -> None:
+        if self.logger.writer is not None:
+            self.logger.writer.close()  # rsl_rl leaves its TensorBoard writer open
+
+    # --- the perception in the loop ------------------------------------------------------
+    def update_perception(self) -> None:
+        """Train the perception on its recorded frames; log how its error changed."""
+        assert self.perception is not None
+        start = time.perf_counter()
+        metrics = self.perception.update()
+        metrics["perception/update_seconds"] = time.perf_counter() - start
+        torch.set_num_threads(self.ppo_cfg.torch_threads)  # the update set the perception's
+        if self.logger.writer is not None:
+            for key, value in metrics.items():
+                self.logger.writer.add_scalar(key, value, self.iteration)
+        print(f"[perception] iteration {self.iteration}: {_metrics_line(metrics)}", flush=True)
+
+    def warm_up_perception(self) -> None:
+        """Train the perception on the starting policy's own states before PPO moves the policy.
+
+        A blind run starts from a ground-truth teacher and a perception trained on the teacher's
+        rollouts. Acting on perceived balls, the teacher reaches states that dataset lacks, the
+        perception errs there, episodes fail, and PPO can settle on holding the balls still
+        (Table III, TacGNN seed 1 without warm-up: 0 % success from iteration 50 on). So, DAgger
+        style: the policy acts (sampled actions, as in PPO's rollouts; normalisers frozen), its
+        frames and the true balls train the perception; repeat `warmup_rounds` times.
+        """
+        assert self.perception is not None
+        cfg = self.perception.cfg
+        actor = self.alg.get_policy()
+        self.alg.eval_mode()  # the observation normaliser must not learn from these steps
+        obs = self.env.get_observations()
+        for round_ in range(1, cfg.warmup_rounds + 1):
+            with torch.inference_mode():
+                for _ in range(cfg.update_every_steps):
+                    obs, *_ = self.env.step(actor(obs, stochastic_output=True))
+            metrics = self.perception.update()
+            torch.set_num_threads(self.ppo_cfg.torch_threads)
+            print(f"[perception warm-up] round {round_}/{cfg.warmup_rounds}: {_metrics_line(metrics)}", flush=True)
+        self.alg.train_mode()
+
+    # --- checkpoints ---------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """The checkpoint of the current state (format: `tacgnn.learning.checkpoint`)."""
+        state = {
+            "format_version": ckpt.FORMAT_VERSION,
+            "iteration": self.iteration,
+            "env_config": to_dict(self.env_cfg),
+            "ppo_config": to_dict(self.ppo_cfg),
+            "obs_dim": self.env.num_obs,
+            "num_actions": self.env.num_actions,
+            **self.alg.save(),  # actor, critic and optimizer state dicts (normalisers are actor/critic buffers)
+            # rsl_rl draws actions and mini-batch permutations from torch's global RNG only.
+            "rng": {"torch": torch.get_rng_state()},
+            "env_state": self.env.state_dict(),
+        }
+        if self.perception is not None:
+            state["perception"] = self.perception.state_dict()
+        return state
+
+    def save_checkpoint(self, run_dir: Path | None = None) -> Path | None:
+        """Write model_<iteration>.pt (and the perception's frames) into run_dir (default: the run's)."""
+        run_dir = run_dir or self.run_dir
+        if run_dir is None:
+            return None
+        if self.perception is not None:  # frames first: a checkpoint on disk always has its frames
+            ckpt.save_frames(run_dir, self.iteration, self.perception.frames_state_dict())
+        target = ckpt.checkpoint_path(run_dir, self.iteration)
+        ckpt.save(target, self.state_dict())
+        if self.perception is not None:
+            ckpt.remove_frames_except(run_dir, self.iteration)
+        self.last_checkpoint = target
+        return target
+
+    def restore(self, checkpoint: dict[str, Any], frames: dict[str, Any] | None = None) -> None:
+        """Continue from `checkpoint` (read by `load_checkpoint`): models, optimiser, RNG, env, perception."""
+        self.alg.load(checkpoint, load_cfg=None, strict=True)  # also restores the adaptive learning rate
+        self.iteration = checkpoint["iteration"]
+        self.env.load_state_dict(checkpoint["env_state"])
+        torch.set_rng_state(checkpoint["rng"]["torch"])
+        if self.perception is not None:
+            if "perception" not in checkpoint:
+                raise ckpt.CheckpointError("checkpoint has no perception state, but this run trains one")
+            self.perception.load_state_dict(checkpoint["perception"])
+            if frames is not None:
+                self.perception.load_frames_state_dict(frames)
+
+
+def make_runner(env, ppo_cfg: PPOConfig, log_dir: Path | None = None) -> OnPolicyRunner:
+    """A plain rsl_rl runner for any VecEnv from `ppo_cfg` (tests, benchmarks, other tasks); no checkpoints."""
+    runner = OnPolicyRunner(env, ppo_cfg.rsl_rl_cfg(), log_dir=None if log_dir is None else str(log_dir),
+                            device="cpu")
+    runner.logger.git_status_repos = []
+    return runner
+
+
+def _metrics_line(metrics: dict[str, float]) -> str:
+    """'rmse_cm_before 0.8, rmse_cm_after 0.7, ...' from {'perception/rmse_cm_before': 0.8, ...}."""
+    return ", ".join(f"{k.split('/')[1]} {v:.4g}" for k, v in metrics.items())
