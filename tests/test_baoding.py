@@ -113,7 +113,7 @@ def _world_circle(env, deg_per_step):
 
 @pytest.mark.parametrize("angle", [90.0, 180.0])
 def test_rotation_by_hand_succeeds_at_the_configured_angle(angle):
-    env = make(1, success_angle_deg=angle, reward=replace(BaodingConfig().reward, action=0.0))
+    env = make(1, success_angle_deg=angle, reward=replace(BaodingConfig().reward, action=0.0, squeeze=0.0))
     env.reset(seed=0)
     _teleport_balls(env, _world_circle(env, 10.0))
     steps = int(angle / 10)

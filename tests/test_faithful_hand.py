@@ -177,3 +177,15 @@ def test_success_waits_for_the_task_s_hold(task, steps):
     results = [bool(env._success(reached, no_fall)[0]) for _ in range(steps + 1)]
     assert results == [False] * steps + [True]
     assert not env._success(reached, np.array([True]))[0], "a fall during the hold is no success"
+
+
+def test_squeezing_the_balls_costs_reward_above_the_free_force():
+    env = BaodingEnv(BaodingConfig(num_envs=2))
+    for _ in range(10):  # close every finger as hard as the motors allow
+        *_, info = env.step(np.ones((2, 16)))
+    forces = env.ball_contact_forces()
+    expected = -0.05 * np.maximum(forces - 5.0, 0).sum(1)
+    assert forces.max() > 5.0 and np.allclose(info["reward_terms"]["squeeze"], expected)
+    env.reset(seed=0)
+    *_, info = env.step(np.tile(env.ctrl_to_action(env.initial_ctrl), (2, 1)))
+    assert (info["reward_terms"]["squeeze"] == 0).all(), "holding the balls gently is free"

@@ -48,6 +48,9 @@ ObsMode = Literal["groundtruth", "no_perception", "finger_torque", "noise_2", "n
 ABLATION_NOISE = {"noise_2": 0.002, "noise_4": 0.005, "noise_10": 0.010}
 BAODING_RANGES = FINGER_RANGES * 3 + THUMB_BAODING_RANGES
 BALLS = ("ball_0", "ball_1")
+BALL_CONTACTS = 4  # strongest contacts of each ball that its contact sensor reports
+_FOUND_AND_FORCE = (1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND)) | (1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE))
+_STRONGEST_FIRST = 2  # the contact sensor's 'maxforce' reduction
 SPAWN_TRIES = 20
 
 
@@ -60,6 +63,11 @@ class RewardConfig:
     success: float = 250.0
     fall: float = -100.0
     timeout: float = -50.0
+    squeeze: float = -0.05
+    """Per newton of each ball contact's normal force above `squeeze_free_force` (not in the paper:
+    without it the policies squeeze the balls with 15-35 N, far beyond what holding them needs)."""
+    squeeze_free_force: float = 5.0
+    """Contact force (N) a ball may feel without penalty: 30 times its weight."""
 
 
 @dataclass(frozen=True)
@@ -177,6 +185,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         spec = hand_scene(cfg.hand, cfg.sim)
         for name, offset, rgba in zip(BALLS, cfg.spawn_offsets, ((0.85, 0.3, 0.2, 1), (0.2, 0.4, 0.85, 1))):
             add_sphere(spec, name, cfg.ball_radius, cfg.ball_mass, offset, cfg.ball_friction, rgba)
+            spec.add_sensor(name=f"{name}_contacts", type=mujoco.mjtSensor.mjSENS_CONTACT,
+                            objtype=mujoco.mjtObj.mjOBJ_BODY, objname=name,
+                            intprm=[_FOUND_AND_FORCE, _STRONGEST_FIRST, BALL_CONTACTS])
         HandEnvBase.__init__(self, spec, cfg.hand, cfg.skin, cfg.sim, cfg.num_envs, cfg.control_dt)
         self.perception = perception
         m = self.model
@@ -184,6 +195,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.ball_qpos_adr = np.array([m.joint(f"{b}_free").qposadr[0] for b in BALLS])
         self.ball_dof_adr = np.array([m.joint(f"{b}_free").dofadr[0] for b in BALLS])
         self.ball_geom = np.array([m.geom(f"{b}_geom").id for b in BALLS])
+        # sensordata columns of each ball contact's normal force (slots of found, fn, ft1, ft2)
+        self._ball_force_cols = np.concatenate([m.sensor(f"{b}_contacts").adr[0] + 1 + 4 * np.arange(BALL_CONTACTS)
+                                                for b in BALLS])
         self._scratch = mujoco.MjData(m)  # checks spawn points for overlaps
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
@@ -444,7 +458,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         reached = self.angle >= np.deg2rad(cfg.success_angle_deg) - 1e-9  # float round-off
         success = self._success(reached, fall)
         timeout = (self.episode_steps >= cfg.max_episode_steps) & ~success & ~fall
-        terms = self._reward_terms(d_angle, actions, success, fall, timeout)
+        terms = self._reward_terms(d_angle, actions, success, fall, timeout, self.ball_contact_forces())
         reward = sum(terms.values())
         terminated = success | fall | diverged
         truncated = timeout & ~terminated
@@ -530,7 +544,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         steps = cfg.hold_steps if cfg.task == "hard" else cfg.long_hold_steps
         return (self.hold_count >= steps) & ~fall
 
-    def _reward_terms(self, d_angle, actions, success, fall, timeout) -> dict[str, np.ndarray]:
+    def ball_contact_forces(self) -> np.ndarray:
+        """(N, 2 x BALL_CONTACTS) normal forces (N) of the balls' strongest contacts, 0 where none."""
+        return self.sim.sensordata[:, self._ball_force_cols]
+
+    def _reward_terms(self, d_angle, actions, success, fall, timeout, ball_forces) -> dict[str, np.ndarray]:
         w = self.config.reward
         return {
             "rotation": w.rotation * np.rad2deg(d_angle),
@@ -538,6 +556,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             "success": w.success * success,
             "fall": w.fall * fall,
             "timeout": w.timeout * timeout,
+            "squeeze": w.squeeze * np.maximum(ball_forces - w.squeeze_free_force, 0.0).sum(axis=1),
         }
 
 
