@@ -13,7 +13,7 @@ import pytest
 from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig
 from tacgnn.hand.allegro import HandConfig
-from tacgnn.hand.skin_layout import Patch, default_skin
+from tacgnn.hand.skin_layout import TYPICAL_CONTACT_FORCE, Patch, default_skin
 from tacgnn.sim.scene import SimConfig
 from tacgnn.sim.tactile import TactileModel
 
@@ -189,3 +189,21 @@ def test_squeezing_the_balls_costs_reward_above_the_free_force():
     env.reset(seed=0)
     *_, info = env.step(np.tile(env.ctrl_to_action(env.initial_ctrl), (2, 1)))
     assert (info["reward_terms"]["squeeze"] == 0).all(), "holding the balls gently is free"
+
+
+def test_a_typical_contact_activates_4_to_5_taxels_on_every_patch():
+    """The paper's 4-5 taxels per ball contact, on average over where the contact lands, at the
+    task's typical contact force (TYPICAL_CONTACT_FORCE, measured on the ground-truth policy)."""
+    skin = replace(default_skin(), noise=0.0)
+    env = BaodingEnv(BaodingConfig(num_envs=1, skin=skin))
+    m, d = env.model, mujoco.MjData(env.model)
+    d.qpos[:] = env.sim.qpos[0]
+    mujoco.mj_forward(m, d)
+    tactile = TactileModel(skin, m)
+    rng = np.random.default_rng(1)
+    for k, patch in enumerate(skin.patches):
+        cells = patch.grid_cells().astype(float)
+        inner = cells[(cells[:, 0] > 0) & (cells[:, 0] < patch.rows - 1)]
+        points = inner[rng.integers(0, len(inner), 100)] + rng.uniform(-0.5, 0.5, (100, 2))
+        counts = [(_press_on_surface(tactile, m, d, k, c, TYPICAL_CONTACT_FORCE) > 0).sum() for c in points]
+        assert 3.8 <= np.mean(counts) <= 5.0, (patch.name, np.mean(counts))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tacgnn.hand.allegro import HandConfig
-from tacgnn.hand.skin_layout import default_skin
+from tacgnn.hand.skin_layout import TYPICAL_CONTACT_FORCE, default_skin
 from tacgnn.sim.scene import SimConfig, add_sphere, compile_with_skin, hand_scene
 from tacgnn.sim.tactile import TactileModel
 
@@ -53,14 +53,14 @@ def scene():
 
 
 @pytest.mark.parametrize("patch", range(12))
-def test_ball_on_each_patch_presses_4_to_5_taxels_with_the_contact_force(scene, patch):
+def test_ball_on_each_patch_presses_a_few_taxels_with_the_contact_force(scene, patch):
     model, data, tactile, pose = scene
-    readings, contact_force = press(model, data, tactile, pose, patch, force=0.5)
+    readings, contact_force = press(model, data, tactile, pose, patch, force=TYPICAL_CONTACT_FORCE)
     lo, hi = tactile.layout.offsets()[patch], tactile.layout.offsets()[patch + 1]
     active = np.flatnonzero(readings > 0)
     assert np.all((active >= lo) & (active < hi)), "only the pressed patch reads"
-    assert 3 <= len(active) <= 7
-    assert contact_force > 0.3
+    assert 2 <= len(active) <= 7  # 4-5 on average over where a contact lands: test_faithful_hand.py
+    assert contact_force > 1.0
     assert readings.sum() == pytest.approx(contact_force, rel=0.02)
 
 

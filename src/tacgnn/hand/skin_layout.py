@@ -179,10 +179,12 @@ PHALANX_PITCH = 0.004
 PALM_PITCH = 0.00725
 PALM_COLUMN_COUNTS = (15, 15, 15, 15, 13, 6, 6, 6, 6, 5, 4, 7)
 
-# Contact radius at 1 N = 1.5 pitches: a typical 0.5 N ball contact then presses a disc of
-# radius 1.2 pitches, which holds 4-5 taxels of a square grid (pi * 1.2^2 = 4.5), the
-# paper's figure. tests/test_tactile.py and bench/bench_sim.py measure it.
-CONTACT_RADIUS_PITCHES = 1.5
+# Contact radius at 1 N = 1.05 pitches: a typical ball contact of the Baoding task (1.5 N, the
+# median over the ground-truth policy's episodes, experiments/faithful_hand/audit.py) then
+# presses a disc of radius 1.2 pitches, which holds 4-5 taxels of a square grid
+# (pi * 1.2^2 = 4.5), the paper's figure. tests/test_tactile.py measures it.
+TYPICAL_CONTACT_FORCE = 1.5
+CONTACT_RADIUS_PITCHES = 1.2 / TYPICAL_CONTACT_FORCE ** (1 / 3)
 TIP_CONTACT_RADIUS = CONTACT_RADIUS_PITCHES * FINGERTIP_PITCH
 PHALANX_CONTACT_RADIUS = CONTACT_RADIUS_PITCHES * PHALANX_PITCH
 PALM_CONTACT_RADIUS = CONTACT_RADIUS_PITCHES * PALM_PITCH
