@@ -69,10 +69,16 @@ class DeviceTactile:
         self.table = torch.as_tensor(normal_table(), **dev)
         self.num_slots = len(patch_of_slot)
 
+    def _tensor(self, array) -> torch.Tensor:
+        """A tensor on the device; numpy input shares memory where it can (read-only arrays are copied)."""
+        if isinstance(array, np.ndarray) and not array.flags.writeable:
+            array = array.copy()
+        return torch.as_tensor(array, device=self.device)
+
     def contacts(self, sensordata):
         """Normal forces (N, P, K) and world contact points (N, P, K, 3) from sensordata."""
         as_numpy = isinstance(sensordata, np.ndarray)
-        data = torch.as_tensor(sensordata, device=self.device)
+        data = self._tensor(sensordata)
         k = self.contacts_per_patch
         force, point = data[:, self.force_idx].reshape(len(data), -1, k), data[:, self.pos_idx].reshape(len(data), -1, k, 3)
         return (force.cpu().numpy(), point.cpu().numpy()) if as_numpy else (force, point)
@@ -80,7 +86,7 @@ class DeviceTactile:
     def readings(self, sensordata, xpos, xmat, rng: np.random.Generator | None = None):
         """Taxel readings (N, T): each contact's normal force spread over its patch."""
         as_numpy = isinstance(sensordata, np.ndarray)
-        sensordata, xpos, xmat = (torch.as_tensor(a, device=self.device) for a in (sensordata, xpos, xmat))
+        sensordata, xpos, xmat = (self._tensor(a) for a in (sensordata, xpos, xmat))
         n = sensordata.shape[0]
         noise = self.layout.noise if rng is not None else 0.0
         seed = draw_step_seed(rng) if noise > 0 else np.uint64(0)  # the same draw as TactileModel
@@ -126,7 +132,7 @@ class DeviceTactile:
     def positions(self, xpos, xmat):
         """World positions (N, T, 3) of all taxels: x_link + R_link p_local."""
         as_numpy = isinstance(xpos, np.ndarray)
-        xpos, xmat = (torch.as_tensor(a, device=self.device) for a in (xpos, xmat))
+        xpos, xmat = (self._tensor(a) for a in (xpos, xmat))
         n = xpos.shape[0]
         rot = xmat[:, self.body_of_taxel].reshape(n, -1, 3, 3).to(torch.float32)
         out = torch.einsum("ntij,tj->nti", rot, self.local_positions) + xpos[:, self.body_of_taxel].to(torch.float32)

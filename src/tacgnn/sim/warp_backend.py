@@ -11,10 +11,15 @@ What differs from the C engine, and why:
 
 * float32 arithmetic, and a solver tolerance of at least 1e-6 (MuJoCo Warp raises it for
   float32), so trajectories drift apart from the C engine's by round-off, then chaos;
-* fixed buffers: at most `nconmax` contacts and `njmax` constraint rows per world. An
-  overflow would silently drop contacts, so `step` raises instead, naming the setting;
+* fixed buffers: `njmax` constraint rows per world, and a pool of `nconmax` contacts per
+  world shared by all. An env that overflows its rows (an exploding env does) counts as
+  diverged, as a MuJoCo error does in the C batch; an overflow of the shared pool would
+  drop contacts anywhere, so `step` raises, naming the setting;
 * MuJoCo Warp never resets a diverged world (the C engine's autoreset, which the scenes
-  disable, is not implemented), so the flag is cleared on the engine's copy of the model.
+  disable, is not implemented), so the flag is cleared on the engine's copy of the model;
+* it computes a free body's inertia from `body_mass` at every step, where MuJoCo 4's C
+  engine uses the `dof_M0` set at compile time (or by `mj_setConst`): a per-env ball mass
+  moves the two apart unless the C batch runs `set_const` after setting it.
 """
 
 from __future__ import annotations
@@ -25,18 +30,25 @@ import logging
 import mujoco
 import numpy as np
 
+from tacgnn.config import ConfigError
+
 log = logging.getLogger(__name__)
 
-# Overflows that change the physics (lost contacts or constraint rows); iteration limits do not.
-_FATAL_OVERFLOWS = {1 << 0: "constraint rows (njmax)", 1 << 2: "broadphase pairs (nconmax)",
-                    1 << 3: "contacts (nconmax)", 1 << 6: "contact-sensor matches"}
+# Overflows that change the physics; iteration limits do not. Constraint rows and sensor
+# matches are per env (that env's step is lost, like a MuJoCo error in the C batch); the
+# contact pool is shared by all envs (an overflow there loses contacts anywhere).
+_ENV_OVERFLOWS = {1 << 0: "constraint rows (sim.warp_njmax)", 1 << 6: "contact-sensor matches"}
+_POOL_OVERFLOWS = {1 << 2: "broadphase pairs", 1 << 3: "contacts"}
 # State the env writes, and derived arrays it reads; (name in mujoco_warp.Data, trailing shape).
-_STATE = ("qpos", "qvel", "ctrl", "xfrc_applied")
+_STATE = ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart")
 _DERIVED = ("xpos", "xmat", "sensordata", "actuator_force")
 
 
-class WarpUnavailable(RuntimeError):
+class WarpUnavailable(ConfigError):
     """`sim.backend: warp` cannot run here: the package is missing or the model uses an unsupported feature."""
+
+    def __init__(self, message: str):
+        super().__init__(message, key="sim.backend", detail=message)
 
 
 def import_warp():
@@ -95,6 +107,7 @@ class WarpSim:
                                       f"support: {err}") from err
             data = mujoco.MjData(m)
             self.wdata = mjw.put_data(m, data, nworld=num_envs, nconmax=nconmax, njmax=njmax)
+        self.wmodel.opt.warn_overflow = 0  # `step` checks the flags itself
         self.nconmax, self.njmax = nconmax, njmax
         self._expanded: dict[str, tuple[object, np.ndarray]] = {}  # field -> (device array, view)
         self._mask = wp.zeros(num_envs, dtype=bool, device=self.device)
@@ -196,15 +209,24 @@ class WarpSim:
         for _ in range(nstep):
             self._mjw.step(self.wmodel, self.wdata)
         self._download()
-        self._check_overflow()
         bad = ~(np.abs(self.qvel).max(1, initial=0.0) <= self.max_speed) | ~np.isfinite(self.qpos).all(1)
+        bad |= self._overflowed()
         if bad.any():
             log.warning("simulation diverged in envs %s; they will be reset", np.flatnonzero(bad).tolist())
         return bad
 
-    def _check_overflow(self) -> None:
-        flags = np.bitwise_or.reduce(self.wdata.overflow.numpy())
-        lost = [what for bit, what in _FATAL_OVERFLOWS.items() if flags & bit]
-        if lost:
-            raise RuntimeError(f"MuJoCo Warp ran out of room for {', '.join(lost)} (per world: nconmax="
-                               f"{self.nconmax}, njmax={self.njmax}): raise sim.warp_nconmax / sim.warp_njmax")
+    def _overflowed(self) -> np.ndarray:
+        """(N,) envs whose step lost constraint rows; raise if the shared contact pool overflowed.
+
+        The flags stay set until an env is reset, which the caller does to a diverged env.
+        """
+        flags = self.wdata.overflow.numpy()
+        pool = [what for bit, what in _POOL_OVERFLOWS.items() if np.bitwise_or.reduce(flags) & bit]
+        if pool:
+            raise RuntimeError(f"MuJoCo Warp ran out of room for {' and '.join(pool)} ({self.nconmax} per env): "
+                               "raise sim.warp_nconmax")
+        lost = (flags & sum(_ENV_OVERFLOWS)) != 0
+        if lost.any():
+            names = [what for bit, what in _ENV_OVERFLOWS.items() if np.bitwise_or.reduce(flags[lost]) & bit]
+            log.warning("MuJoCo Warp ran out of %s in envs %s", " and ".join(names), np.flatnonzero(lost).tolist())
+        return lost

@@ -1,0 +1,161 @@
+"""The MuJoCo Warp backend (`sim.backend: warp`) against the C engine, on the CPU.
+
+One control step from the same state, the skin on the same contacts, the env's rules
+and divergence handling on Warp, the host-mirror path a GPU uses, and bad input.
+The first run compiles MuJoCo Warp's kernels (about a minute); they are cached after.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mujoco_warp")
+
+import mujoco  # noqa: E402
+import mujoco.batch  # noqa: E402
+
+from tacgnn.config import ConfigError  # noqa: E402
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig  # noqa: E402
+from tacgnn.sim.scene import SimConfig  # noqa: E402
+from tacgnn.sim.tactile_device import DeviceTactile  # noqa: E402
+from tacgnn.sim.warp_backend import WarpSim, WarpUnavailable  # noqa: E402
+
+# Per-env gravity, friction, gains, damping and torque limits; the ball mass stays at its compiled value
+# (MuJoCo 4's C engine keeps a free body's compiled inertia, dof_M0, unless set_const runs;
+# MuJoCo Warp recomputes it: see warp_backend.py).
+CFG = BaodingConfig(num_envs=4, task="middle", disturbance_interval=1,
+                    randomization=RandomizationConfig(enabled=True, ball_mass=(0.15, 0.15)))
+ENV_BUFFERS = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action")
+
+
+def on_warp(cfg: BaodingConfig) -> BaodingConfig:
+    return replace(cfg, sim=replace(cfg.sim, backend="warp"))
+
+
+def copy_env(c: BaodingEnv, w: BaodingEnv) -> None:
+    """Give the Warp env the C env's whole state: physics, per-env model fields, task buffers, RNGs."""
+    for name in ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart"):
+        getattr(w.sim, name)[:] = getattr(c.sim, name)
+    randomized = [name for name in mujoco.batch.MODEL_FIELDS if c.sim.batch.expanded(name) is not None]
+    assert "opt.gravity" in randomized
+    for name in randomized:
+        w.sim.expand(name)[:] = c.sim.batch.expanded(name)
+    for name in ENV_BUFFERS:
+        getattr(w, name)[:] = getattr(c, name)
+    w.set_rng_state(c.rng_state())
+    w.sim.forward()
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """A C env driven 25 steps into contact, and a Warp env given its state."""
+    c, w = BaodingEnv(CFG), BaodingEnv(on_warp(CFG))
+    c.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        c.step(np.clip(c.last_action + 0.05 * rng.standard_normal(c.last_action.shape), -1, 1))
+    copy_env(c, w)
+    c.sim.forward()  # both engines' poses and contacts at the current state (the state is unchanged)
+    return c, w
+
+
+def test_skin_on_the_device_equals_the_compiled_skin(pair):
+    """The torch skin model against TactileModel on the same contacts, noise and all."""
+    c, w = pair
+    sim = c.sim
+    device = DeviceTactile(CFG.skin, c.model)
+    for seed in (None, 7):
+        rng = (lambda: np.random.default_rng(seed)) if seed is not None else (lambda: None)
+        ref = c.tactile.readings(sim.sensordata, sim.xpos, sim.xmat, rng())
+        out = device.readings(sim.sensordata, sim.xpos, sim.xmat, rng())
+        assert (ref > 0).sum() >= CFG.num_envs
+        assert np.abs(out - ref).max() <= 1e-5  # N
+    np.testing.assert_allclose(device.positions(sim.xpos, sim.xmat), c.tactile.positions(sim.xpos, sim.xmat),
+                               atol=1e-6)
+    # on the Warp engine's own (float32) contacts, read from its arrays as torch tensors, no copies
+    views = w.sim.device_views()
+    out = w.tactile.readings(views["sensordata"], views["xpos"], views["xmat"], np.random.default_rng(3))
+    assert isinstance(out, torch.Tensor)
+    ref = c.tactile.readings(w.sim.sensordata, w.sim.xpos, w.sim.xmat, np.random.default_rng(3))
+    assert (ref > 0).sum() >= CFG.num_envs and np.abs(out.numpy() - ref).max() <= 1e-5
+
+
+def test_one_control_step_matches_the_c_engine(pair):
+    c, w = pair
+    forces = c.tactile.contacts(c.sim.sensordata)[0]
+    assert (forces > 0).sum((1, 2)).min() >= 1  # balls resting on the skin: the step has contacts
+    assert np.abs(w.sim.xpos - c.sim.xpos).max() < 1e-6  # same state, same poses
+    action = np.clip(c.last_action + 0.3 * np.random.default_rng(1).standard_normal(c.last_action.shape), -1, 1)
+    _, rew_c, term_c, trunc_c, info_c = c.step(action)
+    _, rew_w, term_w, trunc_w, info_w = w.step(action)
+    assert not (term_c | trunc_c).any() and not (term_w | trunc_w).any()
+    assert np.abs(info_w["ball_pos"] - info_c["ball_pos"]).max() < 1e-4  # m
+    assert np.abs(w.joint_pos - c.joint_pos).max() < 1e-4  # rad
+    assert np.abs(c.sim.xfrc_applied).max() > 0  # the kicks of the 'middle' task were applied, equally
+    np.testing.assert_allclose(w.sim.xfrc_applied, c.sim.xfrc_applied, atol=1e-7)
+    np.testing.assert_allclose(rew_w, rew_c, atol=0.05)  # 0.5 per degree of rotation
+
+
+def test_a_diverging_env_is_reset_alone_on_warp():
+    """Timestep x400 in env 1 explodes it (it overflows its constraint rows): it is flagged
+    diverged and reset, the others step on."""
+    env = BaodingEnv(on_warp(replace(CFG, randomization=RandomizationConfig())))
+    env.reset(seed=0)
+    env.sim.expand("opt.timestep")[1] = 2.0
+    obs, reward, terminated, _, info = env.step(env.last_action.copy())
+    assert info["diverged"].tolist() == [False, True, False, False]
+    assert terminated[1] and reward[1] == 0 and np.isfinite(obs).all()
+    env.sim.expand("opt.timestep")[1] = CFG.sim.timestep
+    _, _, _, _, info = env.step(env.last_action.copy())
+    assert not info["diverged"].any() and np.isfinite(info["ball_pos"]).all()
+
+
+def test_host_mirror_path_equals_the_views(pair):
+    """The GPU path keeps host copies of every array: on the CPU it must give what the views give."""
+    c, _ = pair
+    sims = WarpSim(c.model, 2), WarpSim(c.model, 2, mirror=True)
+    for sim in sims:
+        sim.qpos[:] = c.sim.qpos[:2]
+        sim.ctrl[:] = c.sim.ctrl[:2]
+        sim.expand("opt.gravity")[1] = (0.0, 0.0, -7.0)
+        sim.forward()
+        sim.step(2)
+        sim.reset(np.array([0]))
+        sim.qpos[0] = c.sim.qpos[2]
+        sim.forward(np.array([0]))
+    view, mirror = sims
+    for name in ("qpos", "qvel", "xpos", "xmat", "sensordata", "actuator_force"):
+        np.testing.assert_array_equal(getattr(mirror, name), getattr(view, name), err_msg=name)
+    assert np.abs(view.qpos[1] - c.sim.qpos[1]).max() > 1e-6  # env 1 moved; env 0 was reset and placed
+
+
+def test_forward_of_some_envs_leaves_the_others_derived_arrays(pair):
+    """As in the C batch: a reset env's poses are recomputed, the others' stay as of their last step."""
+    _, w = pair
+    before = w.sim.xpos.copy()
+    qpos = w.sim.qpos.copy()
+    w.sim.qpos[:, 2] += 0.01  # every env moved, only env 0 recomputed
+    w.sim.forward(np.array([0]))
+    assert np.abs(w.sim.xpos[0] - before[0]).max() > 1e-3
+    np.testing.assert_array_equal(w.sim.xpos[1:], before[1:])
+    w.sim.qpos[:] = qpos
+    w.sim.forward()
+
+
+def test_bad_backend_input_is_named():
+    with pytest.raises(ConfigError, match="sim.backend"):
+        SimConfig(backend="gpu")
+    model = BaodingEnv(replace(CFG, num_envs=1)).model
+    model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_FWDINV
+    with pytest.raises(WarpUnavailable, match="mjENBL_FWDINV"):
+        WarpSim(model, 1)
+
+
+def test_missing_package_is_named_at_config_time(monkeypatch):
+    import importlib.util
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "mujoco_warp" else real(name, *a))
+    with pytest.raises(ConfigError, match="mujoco-warp"):
+        SimConfig(backend="warp")
