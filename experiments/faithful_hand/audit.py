@@ -20,6 +20,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -28,6 +29,7 @@ import numpy as np
 from tacgnn.config import override, parse_overrides
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.learning.policy import load_policy
+from tacgnn.sim.tactile import TactileModel
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,18 +54,21 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
-    from dataclasses import replace
     cfg = replace(cfg, num_envs=episodes)
     env = BaodingEnv(cfg)
     m = env.model
     data = mujoco.MjData(m)
     ball_geoms = set(env.ball_geom.tolist())
-    hand_bodies = {m.body(p.body).id for p in cfg.skin.patches}
+    patch_of_body = {m.body(p.body).id: k for k, p in enumerate(cfg.skin.patches)}
+    offsets = cfg.skin.offsets()
+    quiet = TactileModel(replace(cfg.skin, noise=0.0), m)
     pen, forces, tmax = [], [], 0.0
+    skinned_force, read_force = 0.0, 0.0
+    per_contact = []  # (patch type, force, activated taxels) of patches touched by one contact
     orig_step = env.sim.step
 
     def stepped(nstep: int) -> np.ndarray:
-        nonlocal tmax
+        nonlocal tmax, skinned_force, read_force
         bad = np.zeros(env.num_envs, bool)
         for _ in range(nstep):
             bad |= orig_step(1)
@@ -71,6 +76,8 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
             for i in np.flatnonzero(~done):
                 env.sim.batch.get_data(int(i), data)
                 mujoco.mj_forward(m, data)
+                readings = quiet.readings(data.sensordata[None], data.xpos[None], data.xmat[None])[0]
+                on_patch: dict[int, list[float]] = {}
                 for j in range(data.ncon):
                     c = data.contact[j]
                     g = (int(c.geom[0]), int(c.geom[1]))
@@ -80,6 +87,17 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
                     f = np.zeros(6)
                     mujoco.mj_contactForce(m, data, j, f)
                     forces.append(f[0])
+                    link = g[1] if g[0] in ball_geoms else g[0]
+                    k = patch_of_body.get(int(m.geom_bodyid[link]))
+                    if k is not None:
+                        on_patch.setdefault(k, []).append(f[0])
+                for k, fs in on_patch.items():
+                    patch_read = float(readings[offsets[k]:offsets[k + 1]].sum())
+                    skinned_force += sum(fs)
+                    read_force += patch_read
+                    if len(fs) == 1 and fs[0] > 0.05:
+                        kind = cfg.skin.patches[k].name.split("_")[-1]
+                        per_contact.append((kind, fs[0], int((readings[offsets[k]:offsets[k + 1]] > 0).sum())))
         return bad
 
     env.sim.step = stepped
@@ -97,6 +115,15 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
         if done.all():
             break
     pen_mm = 1000 * np.asarray(pen)
+    taxels = {}
+    for kind in sorted({k for k, _, _ in per_contact}):
+        rows = np.array([(f, n) for k, f, n in per_contact if k == kind])
+        edges = [0.05, 0.5, 1, 2, 4, 8, 1e9]
+        taxels[kind] = {"median_force": float(np.median(rows[:, 0])),
+                        "median_taxels": float(np.median(rows[:, 1])),
+                        "by_force": {f"{lo}-{hi}": float(np.median(rows[(rows[:, 0] >= lo) & (rows[:, 0] < hi), 1]))
+                                     for lo, hi in zip(edges[:-1], edges[1:])
+                                     if ((rows[:, 0] >= lo) & (rows[:, 0] < hi)).any()}}
     forces = np.asarray(forces)
     return {
         "episodes": episodes,
@@ -108,6 +135,8 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
         "normal_force_p99": float(np.percentile(forces, 99)) if len(forces) else 0.0,
         "normal_force_max": float(forces.max()) if len(forces) else 0.0,
         "normal_force_median": float(np.median(forces)) if len(forces) else 0.0,
+        "skin_share_of_skinned_link_force": read_force / skinned_force if skinned_force else None,
+        "taxels_per_contact": taxels,
         "success": float(success.mean()),
         "mean_steps_to_success": float(steps_to_success[success].mean()) if success.any() else None,
         "seconds": time.time() - t0,
@@ -115,7 +144,6 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
 
 
 def count_spawn_overlaps(cfg: BaodingConfig, resets: int) -> dict:
-    from dataclasses import replace
     env = BaodingEnv(replace(cfg, num_envs=min(resets, 1000), spawn_clearance=cfg.spawn_clearance))
     m, d = env.model, mujoco.MjData(env.model)
     balls = set(env.ball_geom.tolist())

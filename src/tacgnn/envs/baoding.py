@@ -93,9 +93,10 @@ class RandomizationConfig:
 @dataclass(frozen=True)
 class BaodingConfig:
     num_envs: int = 64
-    task: Literal["simple", "middle", "hard", "hold"] = "simple"
+    task: Literal["simple", "middle", "hard", "hold", "continuous"] = "simple"
     """simple: reach the angle; middle: with disturbing kicks; hard: middle, then hold `hold_steps`;
-    hold: simple, then keep both balls in the hand `long_hold_steps` (1 s)."""
+    hold: simple, then keep both balls in the hand `long_hold_steps` (1 s); continuous: turn as far
+    as possible in `continuous_seconds` (no success, a fall ends the episode)."""
     obs_mode: ObsMode = "groundtruth"
     hand: HandConfig = field(default_factory=lambda: HandConfig(joint_ranges=BAODING_RANGES))
     skin: SkinLayout = field(default_factory=default_skin)
@@ -104,6 +105,11 @@ class BaodingConfig:
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     control_dt: float = 0.02
     max_episode_steps: int = 200
+    """Step limit of the 180-degree tasks (the continuous task's is `continuous_seconds`)."""
+    continuous_seconds: float = 10.0
+    """Length of a continuous-task episode (s): a whole number of control steps."""
+    continuous_disturbances: bool = False
+    """Continuous task: the Middle task's kicks on the balls."""
     ball_radius: float = 0.02625
     ball_mass: float = 0.15
     ball_friction: float = 1.0
@@ -147,6 +153,9 @@ class BaodingConfig:
     def __post_init__(self) -> None:
         check(self.num_envs >= 1, "num_envs", f"must be >= 1, got {self.num_envs}")
         check(self.max_episode_steps >= 1, "max_episode_steps", "must be >= 1")
+        steps = self.continuous_seconds / self.control_dt if self.control_dt > 0 else 0.0
+        check(self.continuous_seconds > 0 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",
+              f"must be a positive whole number of control steps ({self.control_dt} s), got {self.continuous_seconds}")
         check(self.ball_radius > 0, "ball_radius", f"must be positive, got {self.ball_radius}")
         check(self.ball_mass > 0, "ball_mass", f"must be positive, got {self.ball_mass}")
         check(self.ball_friction > 0, "ball_friction", "must be positive")
@@ -235,6 +244,15 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             })
         dim = 4 * NUM_JOINTS if self.config.obs_mode == "finger_torque" else 3 * NUM_JOINTS + 6
         return gym.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
+
+    @property
+    def episode_limit(self) -> int:
+        """Steps after which an episode is truncated: `max_episode_steps`, or the continuous task's
+        `continuous_seconds` in control steps."""
+        cfg = self.config
+        if cfg.task == "continuous":
+            return int(round(cfg.continuous_seconds / cfg.control_dt))
+        return cfg.max_episode_steps
 
     def ball_positions(self) -> np.ndarray:
         """(N, 2, 3) ball centres relative to the hand origin (world axes, m)."""
@@ -457,7 +475,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         fall = self._fallen(balls)
         reached = self.angle >= np.deg2rad(cfg.success_angle_deg) - 1e-9  # float round-off
         success = self._success(reached, fall)
-        timeout = (self.episode_steps >= cfg.max_episode_steps) & ~success & ~fall
+        timeout = (self.episode_steps >= self.episode_limit) & ~success & ~fall
         terms = self._reward_terms(d_angle, actions, success, fall, timeout, self.ball_contact_forces())
         reward = sum(terms.values())
         terminated = success | fall | diverged
@@ -501,7 +519,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def _apply_disturbances(self) -> None:
         cfg, xfrc = self.config, self.sim.xfrc_applied
         xfrc[:] = 0.0
-        if cfg.task in ("simple", "hold"):
+        if cfg.task in ("simple", "hold") or (cfg.task == "continuous" and not cfg.continuous_disturbances):
             return
         kick = (self.episode_steps % cfg.disturbance_interval == 0) & (self.episode_steps > 0)
         ids = np.flatnonzero(kick)
@@ -536,6 +554,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
     def _success(self, reached: np.ndarray, fall: np.ndarray) -> np.ndarray:
         cfg = self.config
+        if cfg.task == "continuous":
+            return np.zeros_like(reached)
         if cfg.task not in ("hard", "hold"):
             return reached & ~fall
         holding = self.hold_count >= 0
@@ -555,7 +575,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             "action": w.action * np.sum(actions**2, axis=1),
             "success": w.success * success,
             "fall": w.fall * fall,
-            "timeout": w.timeout * timeout,
+            "timeout": (0.0 if self.config.task == "continuous" else w.timeout) * timeout,  # 10 s is the goal there
             "squeeze": w.squeeze * np.maximum(ball_forces - w.squeeze_free_force, 0.0).sum(axis=1),
         }
 

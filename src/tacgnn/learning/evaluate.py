@@ -31,10 +31,11 @@ from tacgnn.files import FileProblem, atomic_write_text
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.policy import load_perception, load_policy
+from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.models import PerceptionModelConfig
-from tacgnn.perception.train import load_checkpoint as load_perception_checkpoint
 
-TASKS = ("simple", "middle", "hard", "hold")  # the paper's three, and Simple with a 1 s hold
+TASKS_180 = ("simple", "middle", "hard", "hold")  # the paper's three, and Simple with a 1 s hold
+TASKS = (*TASKS_180, "continuous")  # and as many turns as possible in 10 s
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -106,10 +107,11 @@ def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
     return perception
 
 
-def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "hold"] = "simple", episodes: int = 100,
-             num_envs: int = 64, seed: int = 0,
+def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "hold", "continuous"] = "simple",
+             episodes: int = 100, num_envs: int = 64, seed: int = 0,
              perception: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-             env_overrides: dict[str, Any] | None = None, perception_from: str | Path | None = None) -> dict:
+             env_overrides: dict[str, Any] | None = None, perception_from: str | Path | None = None,
+             allow_task_change: bool = False) -> dict:
     """Run the deterministic policy of `checkpoint` on `task` until `episodes` episodes ended.
 
     The env is the one the policy was trained in (obs mode, physics, randomisation) with
@@ -118,7 +120,10 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
     one trained on) applied. With `perception_from` (see `perception_from_file`) a policy
     that reads ball positions ('groundtruth' or 'perceived') reads that perception's.
     Returns success_rate, mean_steps_to_success (NaN without successes), ci95 (Wilson) of
-    the success rate, episodes, plus fall_rate and mean_final_angle_deg.
+    the success rate, episodes, plus fall_rate and mean_final_angle_deg; and the turns
+    (rotations_mean with a 95 % interval, rotations_max: full turns of the ball pair per
+    episode), the figure of the continuous task. A policy trained on a 180-degree task is
+    evaluated on the continuous one only with `allow_task_change`.
     """
     if task not in TASKS:
         raise ConfigError(f"task must be one of {list(TASKS)}, got {task!r}")
@@ -129,7 +134,11 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
     # configs first: a policy that cannot act in the requested env is named before any tensor exists
     data = ckpt.load_policy_file(checkpoint)
     n = min(num_envs, episodes)
-    env_cfg = replace(ckpt.stored_env_config(data, checkpoint), task=task, num_envs=n, seed=seed)
+    stored = ckpt.stored_env_config(data, checkpoint)
+    if (task == "continuous") != (stored.task == "continuous") and not allow_task_change:
+        raise ConfigError(f"{checkpoint} was trained on the '{stored.task}' task, not '{task}': pass "
+                          f"--allow-task-change to evaluate it there anyway")
+    env_cfg = replace(stored, task=task, num_envs=n, seed=seed)
     env_cfg = override(env_cfg, env_overrides or {})
     ckpt.check_policy_fits(data, env_cfg, checkpoint)
     if perception_from is not None:
@@ -170,14 +179,26 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
         "mean_steps_to_success": float(np.mean(steps_to_success)) if steps_to_success else float("nan"),
         "fall_rate": falls / episodes,
         "mean_final_angle_deg": float(np.mean(final_angles)),
+        **_turns(np.asarray(final_angles) / 360.0),
     }
+
+
+def _turns(turns: np.ndarray) -> dict[str, Any]:
+    """Mean full turns per episode with a normal-approximation 95 % interval, and the best."""
+    half = 1.959964 * turns.std(ddof=1) / np.sqrt(len(turns)) if len(turns) > 1 else float("nan")
+    return {"rotations_mean": float(turns.mean()),
+            "rotations_ci95": (float(turns.mean() - half), float(turns.mean() + half)),
+            "rotations_max": float(turns.max())}
 
 
 def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> int:
     """`tacgnn evaluate`; user errors raise (ConfigError, CheckpointError, OSError), for the CLI to report."""
     parser = parser_class(prog="tacgnn evaluate", description="Evaluate a PPO checkpoint on the Baoding tasks (Table III).")
     parser.add_argument("checkpoint", type=Path)
-    parser.add_argument("--task", default="all", choices=(*TASKS, "all"))
+    parser.add_argument("--task", default="all", choices=(*TASKS, "all"),
+                        help="'all': the four 180-degree tasks; 'continuous': turns in 10 s")
+    parser.add_argument("--allow-task-change", action="store_true",
+                        help="evaluate a policy trained for the 180-degree tasks on the continuous one, or the reverse")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--envs", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
@@ -194,10 +215,11 @@ def _evaluate_command(args: argparse.Namespace) -> int:
     for flag, value in (("--episodes", args.episodes), ("--envs", args.envs)):
         if value < 1:
             raise ConfigError(f"{flag} must be >= 1, got {value}")
-    tasks = TASKS if args.task == "all" else (args.task,)
+    tasks = TASKS_180 if args.task == "all" else (args.task,)
     changes = parse_overrides(args.set)
     results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed, env_overrides=changes,
-                        perception_from=args.perception) for task in tasks]
+                        perception_from=args.perception, allow_task_change=args.allow_task_change)
+               for task in tasks]
     for r in results:
         r["env_overrides"] = changes
         r["perception"] = None if args.perception is None else str(args.perception)
@@ -207,6 +229,11 @@ def _evaluate_command(args: argparse.Namespace) -> int:
     print(f"{'task':8s} {'success':>8s} {'95% CI':>13s} {'steps':>6s} {'falls':>6s}")
     for r in results:
         lo, hi = r["ci95"]
+        if r["task"] == "continuous":
+            tlo, thi = r["rotations_ci95"]
+            print(f"{r['task']:8s} {r['rotations_mean']:.2f} turns per episode (95% CI {tlo:.2f}-{thi:.2f}, "
+                  f"best {r['rotations_max']:.2f}), falls {100 * r['fall_rate']:.1f}%")
+            continue
         print(f"{r['task']:8s} {100 * r['success_rate']:7.1f}% {100 * lo:5.1f}-{100 * hi:5.1f}% "
               f"{r['mean_steps_to_success']:6.1f} {100 * r['fall_rate']:5.1f}%")
     if args.out:

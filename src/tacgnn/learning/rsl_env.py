@@ -58,7 +58,7 @@ class RslBaodingEnv(VecEnv):
         self.num_envs = config.num_envs
         self.num_actions = int(self.env.single_action_space.shape[0])
         self.num_obs = int(self.env.single_observation_space.shape[0])
-        self.max_episode_length = config.max_episode_steps
+        self.max_episode_length = self.env.episode_limit
         self.device = "cpu"
         self.reward_scale = reward_scale
         self.bootstrap_time_outs = bootstrap_time_outs

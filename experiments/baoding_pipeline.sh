@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# The route to a blind Baoding policy on the torque-limited hand (Table III and the shipped policies).
+#
+#   experiments/baoding_pipeline.sh MODEL [SEED] [ITERATIONS]
+#
+#   MODEL       perception model: tacgnn, mlp, cnn or gcn
+#   SEED        seed of the perception and the blind run (default 0); the teacher is shared (seed 0)
+#   ITERATIONS  PPO iterations of the blind fine-tuning (default 1000)
+#
+# 1. teacher: a ground-truth policy trained on Simple (runs/gt_s0, 600 iterations), fine-tuned on
+#    the 'hold' task (Simple, then both balls in the hand 1 s: runs/gt_hold_s0, 400 iterations)
+# 2. the teacher's rollouts as the perception dataset (50,000 frames from the first step)
+# 3. the perception trained on them offline (10 epochs)
+# 4. the blind policy: the teacher fine-tuned on 'hold' with the perceived ball positions (the
+#    critic reads the true ones), the perception trained in the loop (2 epochs on the newest
+#    25,600 frames every 400 env steps)
+# 5. evaluation on Simple, Middle, Hard and the 1 s hold, 512 episodes each ->
+#    results/table3/RUN_model_NNNNNN.json
+# Every step skips what exists and resumes what was cut off, so the script can be rerun.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+MODEL=${1:?usage: experiments/baoding_pipeline.sh MODEL [SEED] [ITERATIONS]}
+SEED=${2:-0}
+ITERS=${3:-1000}
+T=.venv/bin/tacgnn
+source experiments/lib.sh  # resume, last, offline_perception
+
+GT_SIMPLE=runs/gt_s0
+GT=runs/gt_hold_s0
+if [ ! -f "$(last $GT_SIMPLE 600)" ]; then
+  $T train-policy --run-dir $GT_SIMPLE $(resume $GT_SIMPLE) --env tactile=false \
+    --ppo max_iterations=600 save_interval=50 seed=0
+fi
+if [ ! -f "$(last $GT 400)" ]; then
+  $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hold --ppo max_iterations=400 \
+    save_interval=50 init_from="$(last $GT_SIMPLE 600)" init_noise_std=0.3 seed=0
+fi
+DATA=data/baoding_teacher
+$T make-dataset baoding --policy "$(last $GT 400)" --out $DATA --samples 50000 --settle-steps 0 --seed 0
+PERC=runs/perc/${MODEL}_s$SEED
+offline_perception $PERC $MODEL $SEED $DATA
+RUN=runs/blind_${MODEL}_s$SEED
+if [ ! -f "$(last $RUN $ITERS)" ]; then
+  $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold --ppo max_iterations=$ITERS \
+    save_interval=50 init_from="$(last $GT 400)" init_noise_std=0.2 learning_rate=0.0001 schedule=fixed \
+    privileged_critic=true seed=$SEED \
+    --perception model.name=$MODEL pretrained=$PERC/checkpoint.pt epochs=2 update_every_steps=400
+fi
+mkdir -p results/table3
+for ckpt in "$(last $GT 400)" "$(last $RUN $ITERS)"; do
+  out=results/table3/$(basename $(dirname $ckpt))_$(basename $ckpt .pt).json
+  [ -f $out ] || $T evaluate $ckpt --task all --episodes 512 --envs 128 --out $out
+done
