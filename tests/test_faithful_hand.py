@@ -207,3 +207,14 @@ def test_a_typical_contact_activates_4_to_5_taxels_on_every_patch():
         points = inner[rng.integers(0, len(inner), 100)] + rng.uniform(-0.5, 0.5, (100, 2))
         counts = [(_press_on_surface(tactile, m, d, k, c, TYPICAL_CONTACT_FORCE) > 0).sum() for c in points]
         assert 3.8 <= np.mean(counts) <= 5.0, (patch.name, np.mean(counts))
+
+
+def test_a_policy_of_the_earlier_hand_is_refused_naming_what_differs():
+    from tacgnn.config import to_dict
+    from tacgnn.learning.checkpoint import CheckpointError, stored_env_config
+
+    env_config = to_dict(BaodingConfig())
+    assert stored_env_config({"env_config": env_config}, "new.pt").hand.torque_limit == 0.5
+    del env_config["hand"]["torque_limit"]
+    with pytest.raises(CheckpointError, match="hand.torque_limit"):
+        stored_env_config({"env_config": env_config}, "old.pt")

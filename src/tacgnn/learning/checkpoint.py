@@ -117,8 +117,20 @@ def load_policy_file(path: str | Path) -> dict[str, Any]:
     return load_checkpoint(path)
 
 
+# Keys whose absence marks a checkpoint of the hand before it was made faithful (no torque limit,
+# links that passed through each other, soft contacts): a policy of that hand relies on strength
+# this one does not have, so it is refused rather than read with today's defaults.
+FAITHFUL_HAND_KEYS = (("hand", "torque_limit"), ("sim", "contact_timeconst"))
+
+
 def stored_env_config(checkpoint: dict[str, Any], path: str | Path) -> BaodingConfig:
-    """The env config a checkpoint was trained in (keys added to the code since read as their defaults)."""
+    """The env config a checkpoint was trained in (keys added to the code since read as their defaults,
+    except those of the faithful hand: a checkpoint without them is refused, naming them)."""
+    stored = checkpoint.get("env_config", {})
+    lacking = [f"{a}.{b}" for a, b in FAITHFUL_HAND_KEYS if b not in stored.get(a, {})]
+    if lacking:
+        raise CheckpointError(f"checkpoint {path} was trained on the earlier hand model (no {', '.join(lacking)}: "
+                              "unlimited motor torque, no finger collisions, soft contacts); retrain it on this hand")
     try:
         return from_dict(BaodingConfig, checkpoint["env_config"])
     except ConfigError as err:
@@ -143,19 +155,15 @@ def check_policy_fits(checkpoint: dict[str, Any], env_cfg: BaodingConfig, path: 
     """Raise CheckpointError unless the policy in `checkpoint` can act on what an env of `env_cfg` observes.
 
     For acting, where other physics, tasks or skin noise are fine: the observation mode must
-    match, and a perceiving policy needs the skin on, with as many taxels as its perception
-    reads. Compared on the configs, before any tensor is built, so a mismatch is named
+    match, and a perceiving policy needs a skin of as many taxels as its perception reads. Compared on the configs, before any tensor is built, so a mismatch is named
     rather than failing as a tensor size error.
     """
     stored = stored_env_config(checkpoint, path)
     diffs: list[tuple[str, Any, Any]] = []
     if stored.obs_mode != env_cfg.obs_mode:
         diffs.append(("obs_mode", stored.obs_mode, env_cfg.obs_mode))
-    elif env_cfg.obs_mode in ("perceived", "tactile"):
-        if not env_cfg.tactile:
-            diffs.append(("tactile", stored.tactile, env_cfg.tactile))
-        if stored.skin.num_taxels != env_cfg.skin.num_taxels:
-            diffs.append(("skin (number of taxels)", stored.skin.num_taxels, env_cfg.skin.num_taxels))
+    elif env_cfg.obs_mode in ("perceived", "tactile") and stored.skin.num_taxels != env_cfg.skin.num_taxels:
+        diffs.append(("skin (number of taxels)", stored.skin.num_taxels, env_cfg.skin.num_taxels))
     _raise_on(diffs, f"the policy in {path} cannot act in this env: it observes differently")
 
 
