@@ -67,6 +67,7 @@ def test_kill_9_during_training_then_resume_equals_uninterrupted(tmp_path):
             load_checkpoint(path)
         resume = True
     assert kills >= 2, "the kills landed in the middle of the run"
+    assert not list(run_dir.glob(".*.tmp")), "temp files of killed writes are removed when the run resumes"
     a, b = load_checkpoint(straight), load_checkpoint(list_checkpoints(run_dir)[-1])
     assert b["iteration"] == ITERATIONS
     for key in ("actor_state_dict", "critic_state_dict"):
@@ -175,3 +176,84 @@ def test_env_state_dict_restores_every_per_env_array():
         actions = rng.uniform(-1, 1, (3, 16))
         (oa, ra, *_), (ob, rb, *_) = a.step(actions), b.step(actions)
         assert np.array_equal(oa, ob) and np.array_equal(ra, rb), f"step {t}"
+
+
+# --- temp files of killed writes ---------------------------------------------------------------
+def _tiny(iterations):
+    return replace(ppo(iterations), num_envs=4, num_steps_per_env=4, save_interval=1, num_mini_batches=2,
+                   actor_hidden_dims=(16,), critic_hidden_dims=(16,))
+
+
+def _dead_pid() -> int:
+    child = subprocess.Popen(["true"])
+    child.wait()
+    return child.pid
+
+
+def test_30_resumes_after_killed_writes_leave_no_temp_file(tmp_path, capsys):
+    """Each cycle leaves what a writer killed mid-write leaves (temp files of a checkpoint, the
+    perception's frames and the run config, named by a dead pid), then resumes one iteration
+    further: after 30 cycles no temp file is left, a live writer's temp file is kept, and every
+    checkpoint reads."""
+    run = tmp_path / "run"
+    train(ENV, _tiny(1), run)
+    live = subprocess.Popen(["sleep", "60"])  # another process still writing: its file must stay
+    try:
+        busy = run / f".model_000099.pt.{live.pid}.tmp"
+        busy.write_bytes(b"being written")
+        for cycle in range(30):
+            pid, it = _dead_pid(), cycle + 2
+            for name in (f"model_{it:06d}.pt", f"perception_frames_{it:06d}.pt", "config.yaml"):
+                (run / f".{name}.{pid}.tmp").write_bytes(b"partial")
+            assert len(list(run.glob(".*.tmp"))) == 4
+            train(ENV, _tiny(it), run, resume=True)
+            assert list(run.glob(".*.tmp")) == [busy], f"cycle {cycle}"
+        capsys.readouterr()
+    finally:
+        live.kill()
+        live.wait()
+    assert [p.name for p in list_checkpoints(run)][-1] == "model_000031.pt"
+    for path in list_checkpoints(run):
+        load_checkpoint(path)
+
+
+# a child that resumes the run and is stopped inside its next checkpoint write
+SLOW_WRITER = """
+import sys, time, torch
+from dataclasses import replace
+real_save = torch.save
+def slow_save(obj, fh, *args, **kwargs):
+    real_save(obj, fh, *args, **kwargs)
+    fh.flush()
+    print("writing", flush=True)
+    time.sleep(60)  # killed here, before the rename
+torch.save = slow_save
+sys.path.insert(0, {tests!r})
+from test_kill_resume import _tiny, ENV
+from tacgnn.learning.train import train
+train(ENV, _tiny(5), {run_dir!r}, resume=True)
+"""
+
+
+def test_kill_9_inside_checkpoint_writes_then_resume_leaves_no_temp_file(tmp_path):
+    """Three real kill -9 while a checkpoint is being written: each leaves its temp file, the next
+    run removes it before it starts, and the run that completes leaves none."""
+    run = tmp_path / "run"
+    train(ENV, _tiny(1), run)
+    code = SLOW_WRITER.format(tests=os.path.dirname(__file__), run_dir=str(run))
+    for cycle in range(3):
+        proc = subprocess.Popen([sys.executable, "-c", code], env={**os.environ, "OMP_NUM_THREADS": "1"},
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = ""
+        while line != "writing\n" and proc.poll() is None:
+            line = proc.stdout.readline()
+        assert proc.poll() is None, proc.stderr.read()[-2000:]
+        temps = list(run.glob(".*.tmp"))
+        assert [p.name for p in temps] == [f".model_000002.pt.{proc.pid}.tmp"], f"cycle {cycle}: {temps}"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+    assert len(list(run.glob(".*.tmp"))) == 1  # the last kill's
+    assert train(ENV, _tiny(3), run, resume=True).name == "model_000003.pt"
+    assert not list(run.glob(".*.tmp"))
