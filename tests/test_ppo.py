@@ -324,8 +324,9 @@ def test_evaluate_counts_quota_per_env(run2):
 
 def test_evaluate_on_another_hand(run2, tmp_path):
     """Env changes at evaluation apply (a fall radius of 1 mm ends every episode as a fall at once)
-    and a bad key is named; the CLI writes all three tasks as JSON."""
+    and a bad key is named; the CLI writes every 180-degree task as JSON."""
     from tacgnn.config import ConfigError
+    from tacgnn.learning.evaluate import TASKS_180
     from tacgnn.learning.evaluate import main as evaluate_main
 
     out = evaluate(run2 / "model_000002.pt", episodes=4, num_envs=2, env_overrides={"fall_radius": 0.001})
@@ -336,7 +337,7 @@ def test_evaluate_on_another_hand(run2, tmp_path):
                           str(tmp_path / "r.json"), "--set", "hand.stiffness=2.5"]) == 0
     import json
     rows = json.loads((tmp_path / "r.json").read_text())
-    assert [r["task"] for r in rows] == ["simple", "middle", "hard"]
+    assert [r["task"] for r in rows] == list(TASKS_180)
     assert rows[0]["env_overrides"] == {"hand.stiffness": 2.5}
 
 
