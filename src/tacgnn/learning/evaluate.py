@@ -33,6 +33,7 @@ from tacgnn.learning.online_perception import OnlinePerception, OnlinePerception
 from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.models import PerceptionModelConfig
+from tacgnn.provenance import provenance
 
 TASKS_180 = ("simple", "middle", "hard", "hold")  # the paper's three, and Simple with a 1 s hold
 TASKS = (*TASKS_180, "continuous")  # and as many turns as possible in 10 s
@@ -223,6 +224,8 @@ def _evaluate_command(args: argparse.Namespace) -> int:
     for r in results:
         r["env_overrides"] = changes
         r["perception"] = None if args.perception is None else str(args.perception)
+        r["provenance"] = provenance({"policy": args.checkpoint, "perception": args.perception}, args.seed,
+                                     {"task": r["task"], "episodes": args.episodes, "envs": args.envs, "set": args.set})
     print(f"{args.checkpoint}: {args.episodes} episodes per task, deterministic policy"
           + (f", env changed: {' '.join(args.set)}" if args.set else "")
           + (f", ball positions from {args.perception}" if args.perception else ""))
