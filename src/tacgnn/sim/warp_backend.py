@@ -44,6 +44,18 @@ _STATE = ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart")
 _DERIVED = ("xpos", "xmat", "sensordata", "actuator_force")
 
 
+# MuJoCo's integration state (mjSTATE_INTEGRATION) in its order: (component, mujoco_warp.Data
+# field); None for components this backend does not carry (an error if the model has them).
+_S = mujoco.mjtState
+_INTEGRATION_STATE = (
+    (_S.mjSTATE_TIME, "time"), (_S.mjSTATE_QPOS, "qpos"), (_S.mjSTATE_QVEL, "qvel"), (_S.mjSTATE_ACT, "act"),
+    (_S.mjSTATE_HISTORY, None), (_S.mjSTATE_WARMSTART, "qacc_warmstart"), (_S.mjSTATE_CTRL, "ctrl"),
+    (_S.mjSTATE_QFRC_APPLIED, "qfrc_applied"), (_S.mjSTATE_XFRC_APPLIED, "xfrc_applied"),
+    (_S.mjSTATE_EQ_ACTIVE, "eq_active"), (_S.mjSTATE_MOCAP_POS, "mocap_pos"),
+    (_S.mjSTATE_MOCAP_QUAT, "mocap_quat"), (_S.mjSTATE_USERDATA, "userdata"), (_S.mjSTATE_PLUGIN, None),
+    (_S.mjSTATE_PLASTIC, None))
+
+
 class WarpUnavailable(ConfigError):
     """`sim.backend: warp` cannot run here: the package is missing or the model uses an unsupported feature."""
 
@@ -135,6 +147,24 @@ class WarpSim:
         for name in names:
             host = getattr(self, name)
             host[...] = getattr(self.wdata, name).numpy().reshape(host.shape)
+
+    @property
+    def batch(self) -> WarpSim:
+        """Itself: code written for the C batch reads `sim.batch.state` and `sim.batch.expanded`."""
+        return self
+
+    @property
+    def nstate(self) -> int:
+        return mujoco.mj_stateSize(self.model, _S.mjSTATE_INTEGRATION)
+
+    @property
+    def state(self) -> IntegrationState:
+        """(N, nstate) integration states in MuJoCo's layout (as `mujoco.batch.Batch.state`), float64.
+
+        Read as a copy, written through: ``sim.state[ids] = rows``. The layout is the C
+        engine's, so states (checkpoints) move between the two backends.
+        """
+        return IntegrationState(self)
 
     def device_views(self) -> dict[str, object]:
         """Torch tensors over the device arrays (no copy): sensordata, xpos, xmat (N, nbody, 9), qpos, qvel."""
@@ -230,3 +260,47 @@ class WarpSim:
             names = [what for bit, what in _ENV_OVERFLOWS.items() if np.bitwise_or.reduce(flags[lost]) & bit]
             log.warning("MuJoCo Warp ran out of %s in envs %s", " and ".join(names), np.flatnonzero(lost).tolist())
         return lost
+
+
+class IntegrationState:
+    """A `WarpSim`'s integration states as an (N, nstate) array: gathered on read, scattered on write."""
+
+    def __init__(self, sim: WarpSim):
+        self._sim = sim
+        self.shape = (sim.num_envs, sim.nstate)
+        self._parts = []  # (Data field, columns)
+        start = 0
+        for component, name in _INTEGRATION_STATE:
+            size = mujoco.mj_stateSize(sim.model, component)
+            if size and name is None:
+                raise WarpUnavailable(f"sim.backend: warp does not carry the model's {component.name} state")
+            if size:
+                self._parts.append((name, slice(start, start + size)))
+            start += size
+
+    def copy(self) -> np.ndarray:
+        sim = self._sim
+        sim._upload()  # mirror mode: the host copies of the state are the current ones
+        out = np.empty(self.shape)
+        for name, columns in self._parts:
+            out[:, columns] = getattr(sim.wdata, name).numpy().reshape(sim.num_envs, -1)
+        return out
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return self.copy() if dtype is None else self.copy().astype(dtype)
+
+    def __getitem__(self, index) -> np.ndarray:
+        return self.copy()[index]
+
+    def __setitem__(self, index, values) -> None:
+        sim = self._sim
+        full = self.copy()
+        full[index] = values
+        for name, columns in self._parts:
+            array = getattr(sim.wdata, name)
+            rows = full[:, columns].reshape(array.numpy().shape)
+            if sim.mirror:
+                array.assign(rows.astype(array.numpy().dtype))
+            else:
+                array.numpy()[...] = rows
+        sim._download()
