@@ -69,6 +69,8 @@ class Runner:
     # --- the loop ------------------------------------------------------------------------
     def learn(self, until: int) -> None:
         """Run iterations until `until` updates are complete."""
+        if self.iteration >= until:
+            return
         if self.logger.writer is None:
             self.logger.init_logging_writer()
         if self.perception is not None and self.iteration == 0 and self.perception.updates == 0:

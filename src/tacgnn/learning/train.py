@@ -177,5 +177,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         perception_cfg = override(perception_cfg or OnlinePerceptionConfig(), parse_overrides(args.perception))
     elif args.perception:
         raise ConfigError("--perception needs --env obs_mode=perceived")
+    else:
+        perception_cfg = None  # a stored one goes with the stored obs_mode, which --env changed
     train(env_cfg, ppo_cfg, args.run_dir, resume=args.resume, perception_cfg=perception_cfg)
     return 0
