@@ -90,8 +90,9 @@ def test_pretrained_perception_brings_its_architecture(tmp_path):
     from tacgnn.config import to_dict
     from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
     from tacgnn.learning.online_perception import OnlinePerception
-    from tacgnn.perception.train import PerceptionTrainConfig, load_model
-    from tacgnn.perception.train import train as train_perception
+    from tacgnn.perception.checkpoint import load_model
+    from tacgnn.perception.train_config import PerceptionTrainConfig
+    from tacgnn.perception.training import train as train_perception
 
     generate(BaodingDataConfig(samples=128, shard_size=128, num_envs=16), tmp_path / "data")
     cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, model_kw=dict(joint_inputs=16))
@@ -168,8 +169,8 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
     import tacgnn.learning.evaluate as evaluation
     from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
     from tacgnn.learning.online_perception import OnlinePerception
-    from tacgnn.perception.train import PerceptionTrainConfig
-    from tacgnn.perception.train import train as train_perception
+    from tacgnn.perception.train_config import PerceptionTrainConfig
+    from tacgnn.perception.training import train as train_perception
 
     train(BaodingConfig(tactile=False), PPOConfig(num_envs=4, max_iterations=1), tmp_path / "gt")
     gt_policy = tmp_path / "gt" / "model_000001.pt"

@@ -23,10 +23,12 @@ import torch
 
 from tacgnn.config import ConfigError, check, from_dict, to_dict
 from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
+from tacgnn.perception.checkpoint import make_model
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.objectives import Objective
-from tacgnn.perception.train import load_checkpoint as load_perception_checkpoint
-from tacgnn.perception.train import backward_checked, make_model, rest_positions_cm
+from tacgnn.perception.rest_positions import rest_positions_cm
+from tacgnn.perception.training import backward_checked
 
 
 @dataclass(frozen=True)
