@@ -115,7 +115,37 @@ def _compile():
                 out[start_out[g] + t] = lo + last
         return out
 
-    _kernels = (knn_table, fps_order)
+    @numba.njit(cache=True, nogil=True)
+    def lex_greater(keys, a, b):  # pragma: no cover (compiled)
+        """Row a after row b: the first key that differs decides."""
+        for r in range(keys.shape[0]):
+            if keys[r, a] != keys[r, b]:
+                return keys[r, a] > keys[r, b]
+        return False
+
+    # binary insertion sort per graph: n log n comparisons (each reads up to m keys), and
+    # shifts of a few hundred ints at most; no allocation per graph (graphs hold tens of nodes)
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def lex_order(keys, ptr):  # pragma: no cover (compiled)
+        """Per graph, its rows sorted by keys[0], then keys[1], ... (stable), as flat rows."""
+        out = np.empty(keys.shape[1], np.int64)
+        for g in numba.prange(ptr.shape[0] - 1):
+            lo, hi = ptr[g], ptr[g + 1]
+            for i in range(lo, hi):
+                cur = i
+                left, right = lo, i  # first sorted row that comes after cur: equal rows stay first
+                while left < right:
+                    mid = (left + right) // 2
+                    if lex_greater(keys, out[mid], cur):
+                        right = mid
+                    else:
+                        left = mid + 1
+                for j in range(i, left, -1):
+                    out[j] = out[j - 1]
+                out[left] = cur
+        return out
+
+    _kernels = (knn_table, fps_order, lex_order)
     return _kernels
 
 
@@ -148,7 +178,7 @@ def knn_table(x: Tensor, counts: Tensor, k: int, loop: bool = False) -> Tensor:
     ``TacGNN._neighbours``). ``x (V, 3)`` float32 on CPU, graphs as consecutive rows of
     ``counts (B,)`` nodes.
     """
-    knn, _ = _compile()
+    knn, _, _ = _compile()
     _follow_torch_threads()
     n_max = int(counts.max()) if len(counts) else 0
     K = max(1, min(k, n_max if loop else n_max - 1))
@@ -161,7 +191,17 @@ def fps_rows(x: Tensor, counts: Tensor, num_samples: Tensor, centroid_start: boo
 
     Start: the node farthest from the centroid (``centroid_start``) or the first node.
     """
-    _, fps = _compile()
+    _, fps, _ = _compile()
     rows = fps(_coordinates(x), _ptr(counts),
                num_samples.numpy().astype(np.int64), centroid_start)
     return torch.from_numpy(rows)
+
+
+def lexicographic_order(keys: Tensor, counts: Tensor) -> Tensor:
+    """Flat rows of every graph's nodes sorted by ``keys[0]``, ties by ``keys[1]``, ... (stable).
+
+    ``keys (m, V)`` float32 on CPU, graphs as consecutive rows of ``counts (B,)`` nodes.
+    """
+    *_, lex = _compile()
+    _follow_torch_threads()
+    return torch.from_numpy(lex(np.ascontiguousarray(keys.detach().numpy(), np.float32), _ptr(counts)))
