@@ -10,7 +10,8 @@ import time
 import torch
 
 from tacgnn.learning.checkpoint import load_checkpoint
-from tacgnn.perception.train import default_model_config, make_model
+from tacgnn.perception.checkpoint import make_model
+from tacgnn.perception.train_config import default_model_config
 
 
 def per_call(fn, repeats: int) -> float:

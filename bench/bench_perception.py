@@ -35,8 +35,10 @@ import time
 import torch
 import torch.nn.functional as F
 
-from tacgnn.perception.models import MODEL_NAMES, PerceptionModelConfig, build_model, keep_freed_memory
-from tacgnn.perception.train import TRAIN_MODEL_DEFAULTS, default_model_config, make_optimizer
+from tacgnn.perception.models import MODEL_NAMES, PerceptionModelConfig, build_model
+from tacgnn.perception.train_config import TRAIN_MODEL_DEFAULTS, default_model_config
+from tacgnn.perception.training import make_optimizer
+from tacgnn.runtime import keep_freed_memory
 
 T = 653
 
@@ -154,7 +156,7 @@ def main() -> None:
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25))
 
     for name in ("mlp", "cnn", "gcn"):
-        model = build_model(name, rest_positions=rest)
+        model = build_model(PerceptionModelConfig(name=name), rest_positions=rest)
         for threads in (2, 1):
             torch.set_num_threads(threads)
             best, med = graphs_per_second(model, readings, positions, rounds=3)
@@ -180,7 +182,7 @@ def main() -> None:
     update_steps = 2 * 25_600 // batch
     for name in MODEL_NAMES:
         model = (build_model(default_model_config(name="tacgnn", channels=32)) if name == "tacgnn"
-                 else build_model(name, rest_positions=rest))
+                 else build_model(PerceptionModelConfig(name=name), rest_positions=rest))
         train_seconds(model, tr, off, tg, rest, steps=10)  # warm-up
         secs = min(train_seconds(model, tr, off, tg, rest, steps=100) for _ in range(3)) / 100
         print(f"{name.upper()} training step, batch {batch}, 1 thread: {1e3 * secs:.1f} ms best of 3 x 100 steps; "

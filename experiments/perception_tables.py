@@ -25,7 +25,10 @@ import numpy as np
 from tacgnn.datasets import baoding_data, grasp_data
 from tacgnn.datasets.store import read_manifest
 from tacgnn.envs.grasp import GraspConfig
-from tacgnn.perception.train import PerceptionTrainConfig, evaluate, load_checkpoint, train
+from tacgnn.perception.checkpoint import load_checkpoint
+from tacgnn.perception.evaluation import evaluate
+from tacgnn.perception.train_config import PerceptionTrainConfig
+from tacgnn.perception.training import train
 
 PAPER_TABLE1 = {  # object: model: (position cm, orientation deg)
     "cube": {"mlp": (0.187, 12.31), "cnn": (0.891, 15.87), "gcn": (0.195, 10.33), "tacgnn": (0.176, 9.17)},
@@ -215,7 +218,7 @@ def main() -> None:
     lines += ["## Table II: ball positions (RMSE, cm)", "",
               "Test error split by what the skin sees: *touched* = balls with an activated taxel "
               "within 3 cm of the centre, *untouched* = the others (resting on the other ball or on "
-              "a part of the hand without skin); `tacgnn.perception.train.ball_visibility_errors`.", "",
+              "a part of the hand without skin); `tacgnn.perception.evaluation.ball_visibility_errors`.", "",
               "| model | train (ours) | test (ours) | test, touched balls | test, untouched balls | train (paper) "
               "| test (paper) | s/epoch |", "|---|---|---|---|---|---|---|---|"]
     blind_share = []

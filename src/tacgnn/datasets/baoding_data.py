@@ -4,7 +4,7 @@ Per sample: the 653 taxel readings (N), the taxels' world positions (m), the joi
 positions and velocities, and both ball centres (m, world axes, hand origin at 0).
 Balls keep their identity: ``ball_pos[:, 0]`` is always ball 0. The two balls look the
 same to the skin, so a model cannot know which is which; training uses a
-permutation-invariant loss (`tacgnn.perception.train`), and the order stored here is
+permutation-invariant loss (`tacgnn.perception.objectives`), and the order stored here is
 only the simulator's.
 
 Samples come from rollouts of a controller that keeps the balls moving (the scripted
