@@ -7,7 +7,7 @@
     tacgnn make-dataset baoding --out data/baoding      skin frames + ball positions (HDF5 shards)
     tacgnn make-dataset grasp --object cube --out data/cube   power grasps + object poses
     tacgnn train-perception --task baoding --model tacgnn --dataset data/baoding --run runs/p1
-    tacgnn eval-perception --checkpoint runs/p1/checkpoint.pt --dataset data/baoding [--dead 0.1]
+    tacgnn eval-perception --checkpoint runs/p1/checkpoint.pt --dataset data/baoding [--dead 0.1] [--lose-patch palm]
     tacgnn train-policy --run-dir runs/gt --env obs_mode=groundtruth --ppo max_iterations=2000 [--resume]
     tacgnn evaluate runs/gt/model_002000.pt --task middle --episodes 500
     tacgnn sysid recording.npz --out outputs/sysid_hand.yaml    per-joint stiffness/damping from steps
@@ -188,7 +188,8 @@ def cmd_make_dataset(args) -> int:
 
 
 def cmd_train_perception(args) -> int:
-    from tacgnn.perception.train import PerceptionTrainConfig, train
+    from tacgnn.perception.train_config import PerceptionTrainConfig
+    from tacgnn.perception.training import train
 
     cfg = PerceptionTrainConfig.for_task(args.task, args.model, epochs=args.epochs, seed=args.seed,
                                          max_samples=args.max_samples,
@@ -201,11 +202,15 @@ def cmd_train_perception(args) -> int:
 
 
 def cmd_eval_perception(args) -> int:
-    from tacgnn.perception.train import evaluate
+    from tacgnn.perception.evaluation import evaluate, patch_loss
 
     for dead in args.dead:
         metrics = evaluate(args.checkpoint, args.dataset, dead_fraction=dead, seed=args.seed, whole=args.whole)
         print(f"dead taxels {dead:.0%}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
+    for patch in args.lose_patch:
+        metrics = patch_loss(args.checkpoint, args.dataset, patch, whole=args.whole)
+        print(f"without the {patch}: position_rmse_cm {metrics[f'position_rmse_cm_without_{patch}']:.4f} "
+              f"(intact {metrics['position_rmse_cm']:.4f}, ratio {metrics['rmse_ratio']:.2f})")
     return 0
 
 
@@ -439,6 +444,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", required=True)
     p.add_argument("--dead", type=_fraction, nargs="*", default=[0.0], help="fractions of dead taxels, in [0, 1]")
     p.add_argument("--whole", action="store_true", help="use the whole dataset, not its test split")
+    p.add_argument("--lose-patch", nargs="*", default=[], metavar="PATCH",
+                   help="also report the error with every taxel of these skin patches at 0 (e.g. palm)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(fn=cmd_eval_perception)
 
