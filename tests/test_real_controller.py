@@ -3,24 +3,28 @@
 import importlib.util
 import sys
 from dataclasses import replace
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics
 from tacgnn.real import ros
 
 torch.set_num_threads(1)
-ASSETS = Path(__file__).resolve().parents[1] / "src" / "tacgnn" / "assets"
 
 
 @pytest.fixture(scope="module")
-def controller():
-    return BlindController()
+def policy_file(tmp_path_factory):
+    return blind_policy(tmp_path_factory.mktemp("policy"))
+
+
+@pytest.fixture(scope="module")
+def controller(policy_file):
+    return BlindController(BlindControllerConfig(policy=str(policy_file)))
 
 
 @pytest.fixture(scope="module")
@@ -100,9 +104,13 @@ def test_safety_step_limit_keeps_targets_near_the_pose(controller, monkeypatch):
     np.testing.assert_allclose(target, np.minimum(q + 0.05, controller.joint_high))
 
 
-def test_a_policy_that_needs_ball_positions_is_refused():
+def test_a_policy_that_needs_ball_positions_is_refused(policy_file, tmp_path):
+    data = torch.load(policy_file, weights_only=True)
+    data["env_config"]["obs_mode"] = "groundtruth"
+    del data["perception"]
+    torch.save(data, tmp_path / "gt.pt")
     with pytest.raises(ValueError, match="observes 'groundtruth'"):
-        BlindController(BlindControllerConfig(policy=str(ASSETS / "baoding_gt_policy.pt")))
+        BlindController(BlindControllerConfig(policy=str(tmp_path / "gt.pt")))
 
 
 def test_ros_adapter_imports_without_ros_and_explains_what_is_missing():

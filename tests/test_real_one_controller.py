@@ -11,10 +11,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.envs.observation import action_to_target, assemble, target_to_action, track_ball_identities
-from tacgnn.real import BlindController
+from tacgnn.real import BlindController, BlindControllerConfig
 
 torch.set_num_threads(1)
 
@@ -39,8 +40,13 @@ class FlippingPerception:
 
 
 @pytest.fixture(scope="module")
-def controller():
-    return BlindController()
+def policy_file(tmp_path_factory):
+    return blind_policy(tmp_path_factory.mktemp("policy"))
+
+
+@pytest.fixture(scope="module")
+def controller(policy_file):
+    return BlindController(BlindControllerConfig(policy=str(policy_file)))
 
 
 def test_env_and_controller_give_the_same_observations_and_actions(controller):

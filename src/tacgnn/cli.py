@@ -306,43 +306,10 @@ def cmd_calibrate_skin(args) -> int:
 
 
 def cmd_real_hand(args) -> int:
-    """ROS nodes on a real hand: run the controller, record steps for sysid, record skin frames."""
-    from tacgnn.real import ros
-    from tacgnn.real.skin import CalibrationError
+    """ROS nodes for a real hand, or the simulator playing one (tacgnn.real.command)."""
+    from tacgnn.real import command
 
-    cfg = ros.RosConfig(ros_version=args.ros)
-    if args.set:
-        cfg = override(cfg, parse_overrides(args.set))
-    try:
-        return _real_hand_action(args, cfg)
-    except (ImportError, CalibrationError, TimeoutError) as err:
-        print(f"tacgnn real-hand: {err}", file=sys.stderr)
-        return 2
-
-
-def _real_hand_action(args, cfg) -> int:
-    from tacgnn.real import ros
-
-    if args.action == "run":
-        from tacgnn.real.controller import BlindController, BlindControllerConfig
-        from tacgnn.real.skin import SkinCalibration, SkinProcessor
-
-        if not args.calibration:
-            raise ConfigError("real-hand run needs --calibration (from tacgnn calibrate-skin)")
-        controller = BlindController(BlindControllerConfig(policy=str(args.policy or SHIPPED_POLICY),
-                                                           max_step_rad=args.max_step_rad))
-        processor = SkinProcessor(SkinCalibration.load(args.calibration), controller.env_config.skin)
-        ros.run_controller(cfg, controller, processor)
-    elif args.action == "record-steps":
-        from tacgnn.hand.allegro import HandConfig
-        from tacgnn.tools.sysid import StepProtocol
-
-        targets = StepProtocol(tuple(args.levels_deg), args.hold_steps, sequential=not args.together).targets(HandConfig())
-        print(f"commanding {len(targets)} steps ({len(targets) / cfg.rate_hz:.0f} s)")
-        print(f"wrote {ros.record_steps(cfg, targets, args.out)}")
-    else:
-        print(f"wrote {ros.record_skin(cfg, args.frames, args.out)}")
-    return 0
+    return command.run(args)
 
 
 def _fraction(text: str) -> float:
@@ -480,18 +447,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--contact", help="frames pressing every patch: report taxels that never activate")
     p.set_defaults(fn=cmd_calibrate_skin)
 
-    p = sub.add_parser("real-hand", help="ROS nodes for a real hand (needs a sourced ROS setup)")
-    p.add_argument("action", choices=["run", "record-steps", "record-skin"])
-    p.add_argument("--ros", type=int, choices=[1, 2], default=1)
-    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="RosConfig keys, e.g. tactile_topic=/skin")
-    p.add_argument("--policy", help=f"run: policy file (default: the shipped {SHIPPED_POLICY.name})")
-    p.add_argument("--calibration", help="run: skin calibration from calibrate-skin")
-    p.add_argument("--max-step-rad", type=float, default=0.0, help="run: keep targets this close to the pose")
-    p.add_argument("--out", default="outputs/real_recording.npz", help="record-*: output file")
-    p.add_argument("--levels-deg", type=float, nargs="+", default=[0.0, 15.0, 30.0, 45.0, 60.0])
-    p.add_argument("--hold-steps", type=int, default=50)
-    p.add_argument("--together", action="store_true", help="record-steps: all joints at once (default: one by one)")
-    p.add_argument("--frames", type=_count(1), default=500, help="record-skin: frames to save")
+    p = sub.add_parser("real-hand", help="ROS nodes for a real hand, or the simulator as the hand (ROS 1)")
+    from tacgnn.real.command import add_arguments as add_real_hand_arguments
+
+    add_real_hand_arguments(p)
     p.set_defaults(fn=cmd_real_hand)
     return parser
 

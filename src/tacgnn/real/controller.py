@@ -174,6 +174,17 @@ class BlindController:
 
     __call__ = step
 
+    def warm_up(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray, ticks: int = 3) -> None:
+        """Run the networks on a state without changing the controller's state: the first calls
+        pay for lazy initialisation (hundreds of ms), which must not fall on a control tick."""
+        saved = (self.last_action, self.last_target, self.balls.copy(), self.safety.active.copy())
+        touched = np.zeros(self.num_taxels)
+        touched[::10] = 0.1  # contacts all over the skin: the graph code compiles on its first contacts
+        for frame in (skin, touched, np.zeros(self.num_taxels)):
+            for _ in range(ticks):
+                self.act(self.observation(joint_pos, joint_vel, frame))
+        self.last_action, self.last_target, self.balls, self.safety.active = saved
+
     def limit(self, target: np.ndarray, joint_pos: np.ndarray) -> np.ndarray:
         """The safety rules on a target: step limit, rate limit, joint ranges (in that order)."""
         cfg = self.config

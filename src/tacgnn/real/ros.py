@@ -15,16 +15,26 @@ Topics (the authors' setup, all configurable in `RosConfig`):
   Its type (``package/Type``) and which field holds which patch are set by
   ``tactile_type`` and ``tactile_fields``; the defaults follow a public Allegro skin
   message (``<finger>_tip_Value``, ``<finger>_mid_Value``, ``<finger>_end_Value``,
-  ``palm_Value``): check them against your driver's .msg file.
+  ``palm_Value``): check them against your driver's .msg file. Without the message's
+  package, its definition is taken as one ``float32[]`` per field (`bag.tactile_definition`);
+* episodes, ``std_msgs/Int32`` on ``/tacgnn/episode`` (optional): a new value starts an
+  episode (the controller resets, as the env does), a negative value ends the run.
 
-Control runs on a fixed 50 Hz rate: each tick takes the newest joint state and skin
-frame, and commands nothing (holding the last command) when either is older than
-``stale_after_s``; the Allegro driver keeps the last command.
+Control runs on a fixed 50 Hz clock, started just after a joint state arrives (with a
+hand that publishes at the control rate, each tick then reads a state well under a
+period old). Each tick takes the newest joint state and skin frame; when either is older
+than ``stale_periods`` control periods it commands nothing, so the hand holds its last
+command, and one log line says so (one more when data is fresh again). Before the first
+command, the first joint state and skin frame are checked (joint names, patch sizes,
+calibration layout): a mismatch stops with an error that names it.
 """
 
 from __future__ import annotations
 
 import importlib
+import json
+import logging
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +47,7 @@ from tacgnn.hand.allegro import JOINT_NAMES
 
 NUM_JOINTS = len(JOINT_NAMES)
 ALLEGRO_JOINT_NAMES = tuple(f"joint_{i}.0" for i in range(NUM_JOINTS))
+log = logging.getLogger("tacgnn.real")
 
 
 def _default_tactile_fields() -> tuple[tuple[str, str], ...]:
@@ -61,15 +72,32 @@ class RosConfig:
     """'package/Type' of the skin message."""
     tactile_fields: tuple[tuple[str, str], ...] = field(default_factory=_default_tactile_fields)
     """(skin patch name, message field) for every patch of the skin."""
+    episode_topic: str = "/tacgnn/episode"
+    """std_msgs/Int32: a new value starts an episode, a negative one ends the run ('' : not used)."""
     rate_hz: float = 50.0
-    stale_after_s: float = 0.1
-    """A joint state or skin frame older than this stops the commands."""
+    stale_periods: float = 2.0
+    """A joint state or skin frame older than this many control periods stops the commands."""
+    align_to_joint_states: bool = True
+    """Start the control clock `align_delay_s` after a joint state arrives."""
+    align_delay_s: float = 0.001
+    startup_timeout_s: float = 10.0
+    """How long to wait for the first joint state and skin frame."""
 
     def __post_init__(self) -> None:
         check(self.ros_version in (1, 2), "ros.ros_version", f"must be 1 or 2, got {self.ros_version}")
         check(len(self.joint_names) == NUM_JOINTS, "ros.joint_names", f"needs {NUM_JOINTS} names")
         check("/" in self.tactile_type, "ros.tactile_type", f"must look like 'package/Type', got {self.tactile_type!r}")
-        check(self.rate_hz > 0 and self.stale_after_s > 0, "ros.rate_hz", "rate and staleness must be positive")
+        check(self.rate_hz > 0 and self.stale_periods > 0, "ros.rate_hz", "rate and staleness must be positive")
+        check(0 <= self.align_delay_s < 1 / self.rate_hz, "ros.align_delay_s", "must be in [0, one period)")
+        check(self.startup_timeout_s > 0, "ros.startup_timeout_s", "must be positive")
+
+    @property
+    def period(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def stale_after_s(self) -> float:
+        return self.stale_periods / self.rate_hz
 
 
 # --- messages (no ROS needed) ------------------------------------------------------------
@@ -81,7 +109,10 @@ def decode_joint_state(msg: Any, names: tuple[str, ...] = ALLEGRO_JOINT_NAMES) -
         index = {n: i for i, n in enumerate(msg.name)}
         missing = [n for n in names if n not in index]
         if missing:
-            raise ValueError(f"joint state lacks joints {missing[:4]} (has {list(msg.name)[:4]}...)")
+            raise ValueError(f"joint state names do not match ros.joint_names: lacks {missing[:4]}"
+                             f"{' ...' if len(missing) > 4 else ''} (the message has {list(msg.name)[:4]} ...)")
+        if len(pos) != len(msg.name) or len(vel) != len(msg.name):
+            raise ValueError(f"joint state has {len(msg.name)} names but {len(pos)} positions, {len(vel)} velocities")
         order = [index[n] for n in names]
         pos, vel = pos[order], vel[order]
     if pos.shape != (NUM_JOINTS,) or vel.shape != (NUM_JOINTS,):
@@ -109,181 +140,443 @@ def import_message(type_name: str) -> type:
         raise ImportError(f"cannot import message {type_name}: is its package built and sourced?") from err
 
 
+def tactile_message_class(cfg: RosConfig) -> type:
+    """The skin message class: its package's, or (ROS 1, package not installed) one generated
+    from `tactile_fields` as one float32[] per field, which is what the simulated hand sends."""
+    try:
+        return import_message(cfg.tactile_type)
+    except ImportError:
+        if cfg.ros_version != 1:
+            raise
+    import genpy.dynamic
+
+    from tacgnn.real.bag import tactile_definition
+
+    log.info("message package of %s not found: using float32[] fields %s", cfg.tactile_type,
+             [a for _, a in cfg.tactile_fields][:3] + ["..."])
+    return genpy.dynamic.generate_dynamic(cfg.tactile_type, tactile_definition(cfg.tactile_fields))[cfg.tactile_type]
+
+
 class Latest:
-    """The newest message of a topic and when it arrived (callbacks write, the loop reads)."""
+    """The newest message of a topic, when it arrived, and how many came (callbacks write, the loop reads).
+
+    `last` holds (message, arrival time) as one tuple, so a reader never pairs a message
+    with another message's time.
+    """
 
     def __init__(self) -> None:
-        self.msg: Any = None
-        self.stamp = -np.inf
+        self.last: tuple[Any, float] = (None, -np.inf)
+        self.count = 0
+        self.arrived = threading.Event()
 
     def __call__(self, msg: Any) -> None:
-        self.msg, self.stamp = msg, time.monotonic()
+        self.last = (msg, time.monotonic())
+        self.count += 1
+        self.arrived.set()
+
+    @property
+    def msg(self) -> Any:
+        return self.last[0]
+
+    @property
+    def stamp(self) -> float:
+        return self.last[1]
+
+    @stamp.setter
+    def stamp(self, value: float) -> None:
+        self.last = (self.last[0], value)
 
     def fresh(self, max_age: float) -> bool:
-        return self.msg is not None and time.monotonic() - self.stamp <= max_age
+        msg, stamp = self.last
+        return msg is not None and time.monotonic() - stamp <= max_age
 
 
 class ControlTick:
-    """The ROS-free body of one tick: latest joint state + skin -> targets, or None when stale."""
+    """The ROS-free body of one tick: latest joint state + skin -> targets, or None (hold).
+
+    Holds (returns None) when the joint state or the skin frame is older than
+    `cfg.stale_after_s`, with one log line when that starts and one when it ends. A new
+    value on the episode topic resets the controller at the pose of the first joint state
+    received after it (the tick holds until one came); a negative value sets `stop`.
+    """
 
     def __init__(self, cfg: RosConfig, controller, processor):
+        from tacgnn.real.controller import SafetyLog
+
         self.cfg, self.controller, self.processor = cfg, controller, processor
-        self.joints, self.skin = Latest(), Latest()
+        self.joints, self.skin, self.episodes = Latest(), Latest(), Latest()
+        self.safety = SafetyLog()
+        self.episode: int | None = None
+        self.stop = False
+        self.used: tuple[Any, Any] | None = None
+        """The (joint state, skin) messages of the last tick that commanded."""
+        self.reset_now = False
+        """Whether the last tick started an episode."""
+
+    def check_inputs(self) -> None:
+        """Decode the newest joint state and skin frame and run them through the calibration:
+        a ValueError naming the problem if they do not fit (called before any command)."""
+        decode_joint_state(self.joints.msg, self.cfg.joint_names)
+        self.processor(decode_tactile(self.skin.msg, self.cfg.tactile_fields))
 
     def __call__(self) -> np.ndarray | None:
-        if not (self.joints.fresh(self.cfg.stale_after_s) and self.skin.fresh(self.cfg.stale_after_s)):
+        (joint_msg, joint_t), (skin_msg, skin_t), (episode_msg, episode_t) = \
+            self.joints.last, self.skin.last, self.episodes.last
+        now, max_age = time.monotonic(), self.cfg.stale_after_s
+        joints_ok, skin_ok = now - joint_t <= max_age, now - skin_t <= max_age
+        self.safety.note("stale joint state", not joints_ok,
+                         f"stale joint state: none newer than {1e3 * max_age:.0f} ms on "
+                         f"{self.cfg.joint_state_topic}; holding position (no commands)")
+        self.safety.note("stale skin", not skin_ok,
+                         f"stale skin: no frame newer than {1e3 * max_age:.0f} ms on "
+                         f"{self.cfg.tactile_topic}; holding position (no commands)")
+        self.reset_now = False
+        new_episode = episode_msg is not None and int(episode_msg.data) != self.episode
+        if new_episode and int(episode_msg.data) < 0:
+            self.stop = True
             return None
-        pos, vel = decode_joint_state(self.joints.msg, self.cfg.joint_names)
-        readings = self.processor(decode_tactile(self.skin.msg, self.cfg.tactile_fields))
+        if not (joints_ok and skin_ok):
+            return None
+        if new_episode:
+            if joint_t < episode_t:  # the episode's first joint state is still to come
+                return None
+            self.episode = int(episode_msg.data)
+            self.reset_now = True
+        pos, vel = decode_joint_state(joint_msg, self.cfg.joint_names)
+        if self.reset_now:
+            self.controller.reset(pos)
+        readings = self.processor(decode_tactile(skin_msg, self.cfg.tactile_fields))
+        self.used = (joint_msg, skin_msg)
         return self.controller.step(pos, vel, readings)
+
+
+@dataclass
+class LoopStats:
+    """What the control loop did: ticks, commands, holds and how long each tick took."""
+
+    ticks: int = 0
+    commands: int = 0
+    held: int = 0
+    """Ticks without a command because of stale data (after the first command)."""
+    overruns: int = 0
+    """Periods skipped because a tick started more than one period late."""
+    episodes: int = 0
+    latency_s: list[float] = field(default_factory=list)
+    """Per command: from the tick's scheduled time to the command's publication."""
+    compute_s: list[float] = field(default_factory=list)
+    """Per command: from the tick's start to the command's publication."""
+    slow_ticks: list[tuple[int, float, float]] = field(default_factory=list)
+    """(tick, ms late to start, ms computing) of ticks whose command came more than a period late."""
+
+    @property
+    def missed(self) -> int:
+        return self.held + self.overruns
+
+    def summary(self) -> dict:
+        def pct(values, q):
+            return round(1e3 * float(np.percentile(values, q)), 3) if values else None
+        return {"ticks": self.ticks, "commands": self.commands, "missed_ticks": self.missed, "held_stale": self.held,
+                "overruns": self.overruns, "episodes": self.episodes,
+                "tick_to_command_ms": {"p50": pct(self.latency_s, 50), "p99": pct(self.latency_s, 99),
+                                       "max": pct(self.latency_s, 100)},
+                "compute_ms": {"p50": pct(self.compute_s, 50), "p99": pct(self.compute_s, 99),
+                               "max": pct(self.compute_s, 100)},
+                "slow_ticks": self.slow_ticks[:50]}
 
 
 # --- ROS I/O ------------------------------------------------------------------------------
 class _Node:
     """Subscribe, publish, clock and rate over rospy or rclpy, imported only here."""
 
-    def __init__(self, cfg: RosConfig):
+    def __init__(self, cfg: RosConfig, name: str | None = None):
         self.cfg = cfg
         try:
             if cfg.ros_version == 1:
                 import rospy
 
-                rospy.init_node(cfg.node_name)
+                rospy.init_node(name or cfg.node_name, disable_signals=False)
                 self._ros = rospy
             else:
                 import rclpy
 
                 rclpy.init()
-                self._ros, self._node = rclpy, rclpy.create_node(cfg.node_name)
+                self._ros, self._node = rclpy, rclpy.create_node(name or cfg.node_name)
         except ImportError as err:
-            name = "rospy" if cfg.ros_version == 1 else "rclpy"
-            raise ImportError(f"{name} is not importable: source your ROS {cfg.ros_version} setup "
+            lib = "rospy" if cfg.ros_version == 1 else "rclpy"
+            raise ImportError(f"{lib} is not importable: source your ROS {cfg.ros_version} setup "
                               f"(e.g. /opt/ros/<distro>/setup.bash) in this shell first") from err
         from sensor_msgs.msg import JointState
+        from std_msgs.msg import Int32
 
-        self.JointState = JointState
+        self.JointState, self.Int32 = JointState, Int32
 
     def subscribe(self, topic: str, msg_type: type, callback: Callable[[Any], None]) -> None:
         if self.cfg.ros_version == 1:
-            self._ros.Subscriber(topic, msg_type, callback, queue_size=1)
+            self._ros.Subscriber(topic, msg_type, callback, queue_size=1, tcp_nodelay=True)
         else:
             self._node.create_subscription(msg_type, topic, callback, 1)
 
-    def joint_command_publisher(self) -> Callable[[np.ndarray], None]:
-        topic = self.cfg.joint_cmd_topic
-        pub = self._ros.Publisher(topic, self.JointState, queue_size=1) if self.cfg.ros_version == 1 \
-            else self._node.create_publisher(self.JointState, topic, 1)
+    def publisher(self, topic: str, msg_type: type, latch: bool = False) -> Callable[[Any], None]:
+        if self.cfg.ros_version == 1:
+            return self._ros.Publisher(topic, msg_type, queue_size=1, latch=latch, tcp_nodelay=True).publish
+        return self._node.create_publisher(msg_type, topic, 1).publish
 
-        def publish(targets: np.ndarray) -> None:
-            msg = self.JointState()
-            msg.name = list(self.cfg.joint_names)
-            msg.position = [float(x) for x in targets]
-            if self.cfg.ros_version == 1:
-                msg.header.stamp = self._ros.Time.now()
-            else:
-                msg.header.stamp = self._node.get_clock().now().to_msg()
-            pub.publish(msg)
+    def stamp(self, msg: Any) -> Any:
+        if self.cfg.ros_version == 1:
+            msg.header.stamp = self._ros.Time.now()
+        else:
+            msg.header.stamp = self._node.get_clock().now().to_msg()
+        return msg
 
-        return publish
+    def joint_state(self, position: np.ndarray, velocity: np.ndarray | None = None) -> Any:
+        msg = self.JointState()
+        msg.name = list(self.cfg.joint_names)
+        msg.position = [float(x) for x in position]
+        if velocity is not None:
+            msg.velocity = [float(x) for x in velocity]
+        return self.stamp(msg)
 
     def ok(self) -> bool:
         return not self._ros.is_shutdown() if self.cfg.ros_version == 1 else self._ros.ok()
 
-    def loop(self, tick: Callable[[], bool]) -> None:
-        """Call tick() at rate_hz until it returns False or ROS shuts down."""
-        period = 1.0 / self.cfg.rate_hz
-        next_time = time.monotonic()
+    def spin_once(self) -> None:
+        if self.cfg.ros_version == 2:
+            self._ros.spin_once(self._node, timeout_sec=0.0)
+
+    def wait_for(self, what: str, latest: Latest, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while latest.msg is None:
+            if time.monotonic() > deadline or not self.ok():
+                raise TimeoutError(f"no {what} within {timeout:.0f} s: is the hand's driver running?")
+            self.spin_once()
+            latest.arrived.wait(0.01)
+
+    def loop(self, tick: Callable[[float], bool], start: float | None = None, stats: LoopStats | None = None) -> None:
+        """Call tick(scheduled_time) at rate_hz from `start` until it returns False or ROS shuts down;
+        a tick that starts more than a period late skips the periods it missed (counted in stats)."""
+        period = self.cfg.period
+        next_time = time.monotonic() if start is None else start
         try:
             while self.ok():
-                if self.cfg.ros_version == 2:
-                    self._ros.spin_once(self._node, timeout_sec=0.0)
-                if tick() is False:
+                delay = next_time - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                self.spin_once()
+                if tick(next_time) is False:
                     break
                 next_time += period
-                time.sleep(max(0.0, next_time - time.monotonic()))
+                behind = int((time.monotonic() - next_time) // period)
+                if behind > 0:
+                    next_time += behind * period
+                    if stats is not None:
+                        stats.overruns += behind
+                    log.warning("control loop %d period(s) behind; skipped them", behind)
         finally:
             if self.cfg.ros_version == 2:
                 self._node.destroy_node()
                 self._ros.shutdown()
 
+    def shutdown(self, reason: str) -> None:
+        if self.cfg.ros_version == 1:
+            self._ros.signal_shutdown(reason)
 
-def run_controller(cfg: RosConfig, controller, processor, log_every: int = 250) -> None:
-    """Drive the hand with `controller` (a BlindController) at rate_hz until shutdown."""
+
+def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.0, record: str | Path | None = None,
+                   stats_path: str | Path | None = None, log_every: int = 3000) -> LoopStats:
+    """Drive the hand with `controller` (a BlindController) at rate_hz until shutdown, the end
+    of `duration_s` (0: no end) or a negative episode number; optionally record the run as a bag."""
     node = _Node(cfg)
     tick = ControlTick(cfg, controller, processor)
+    tactile_cls = tactile_message_class(cfg)
     node.subscribe(cfg.joint_state_topic, node.JointState, tick.joints)
-    node.subscribe(cfg.tactile_topic, import_message(cfg.tactile_type), tick.skin)
-    publish = node.joint_command_publisher()
-    count = {"ticks": 0, "stale": 0}
+    node.subscribe(cfg.tactile_topic, tactile_cls, tick.skin)
+    if cfg.episode_topic:
+        node.subscribe(cfg.episode_topic, node.Int32, tick.episodes)
+    publish = node.publisher(cfg.joint_cmd_topic, node.JointState)
+    node.wait_for(f"joint state on {cfg.joint_state_topic}", tick.joints, cfg.startup_timeout_s)
+    node.wait_for(f"skin frame on {cfg.tactile_topic}", tick.skin, cfg.startup_timeout_s)
+    tick.check_inputs()  # wrong names, patch sizes, calibration: fail before any command
+    pos, vel = decode_joint_state(tick.joints.msg, cfg.joint_names)
+    controller.warm_up(pos, vel, processor(decode_tactile(tick.skin.msg, cfg.tactile_fields)))
+    log.info("joint states and skin frames check out; controlling at %.0f Hz", cfg.rate_hz)
+    bag = _RunRecorder(record, cfg, tactile_cls) if record else None
+    stats = LoopStats()
+    start = None
+    if cfg.align_to_joint_states:
+        tick.joints.arrived.clear()
+        if tick.joints.arrived.wait(cfg.startup_timeout_s):
+            start = tick.joints.stamp + cfg.align_delay_s
+    end = time.monotonic() + duration_s if duration_s > 0 else np.inf
 
-    def step() -> bool:
+    def step(scheduled: float) -> bool:
+        began = time.monotonic()
         targets = tick()
-        count["ticks"] += 1
+        stats.ticks += 1
+        if tick.stop or began > end:
+            return False
         if targets is None:
-            count["stale"] += 1
+            stats.held += stats.commands > 0
         else:
-            publish(targets)
-        if count["ticks"] % log_every == 0:
-            print(f"[tacgnn] {count['ticks']} ticks, {count['stale']} without fresh joint/skin data", flush=True)
+            msg = node.joint_state(targets)
+            publish(msg)
+            done = time.monotonic()
+            stats.commands += 1
+            stats.episodes += tick.reset_now
+            stats.latency_s.append(done - scheduled)
+            stats.compute_s.append(done - began)
+            if done - scheduled > cfg.period:
+                stats.slow_ticks.append((stats.ticks, round(1e3 * (began - scheduled), 2), round(1e3 * (done - began), 2)))
+            if bag is not None:
+                bag.tick(began, tick, msg)
+        if stats.ticks % log_every == 0:
+            print(f"[tacgnn] {stats.ticks} ticks, {stats.commands} commands, {stats.missed} missed", flush=True)
         return True
 
-    node.loop(step)
+    try:
+        node.loop(step, start, stats)
+    finally:
+        if bag is not None:
+            bag.close()
+        if stats_path:
+            Path(stats_path).parent.mkdir(parents=True, exist_ok=True)
+            Path(stats_path).write_text(json.dumps(stats.summary(), indent=1))
+    node.shutdown("control loop ended")
+    return stats
+
+
+class _RunRecorder:
+    """Writes, per commanding tick, the joint state and skin message it used and its command."""
+
+    def __init__(self, path: str | Path, cfg: RosConfig, tactile_cls: type):
+        from tacgnn.real.bag import BagWriter
+
+        self.cfg = cfg
+        self.writer = BagWriter(path, {tactile_cls._type: tactile_cls._full_text})
+        self.t0 = time.monotonic()
+
+    def tick(self, t: float, tick: ControlTick, command: Any) -> None:
+        time_s = t - self.t0 + 1.0  # bag times must be positive
+        joint_msg, skin_msg = tick.used
+        if tick.reset_now:
+            self.writer.write(self.cfg.episode_topic or "/tacgnn/episode", "std_msgs/Int32",
+                              self.writer.message("std_msgs/Int32", data=tick.episode), time_s)
+        self.writer.write_msg(self.cfg.joint_state_topic, joint_msg, time_s)
+        self.writer.write_msg(self.cfg.tactile_topic, skin_msg, time_s)
+        self.writer.write_msg(self.cfg.joint_cmd_topic, command, time_s)
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def replay_run(path: str | Path, cfg: RosConfig, controller, processor) -> tuple[np.ndarray, np.ndarray]:
+    """(recorded, replayed) (K, 16) targets: a run bag's ticks fed through `controller` offline."""
+    from tacgnn.real.bag import read_bag
+
+    topics = {"joint states": cfg.joint_state_topic, "skin": cfg.tactile_topic, "commands": cfg.joint_cmd_topic}
+    msgs = read_bag(path, topics)
+    episode_topic = cfg.episode_topic or "/tacgnn/episode"
+    try:
+        resets = {round(m.time, 9) for m in read_bag(path, {"episodes": episode_topic})[episode_topic]}
+    except ValueError:
+        resets = set()
+    joints, skins, cmds = (msgs[t] for t in (cfg.joint_state_topic, cfg.tactile_topic, cfg.joint_cmd_topic))
+    if not (len(joints) == len(skins) == len(cmds)):
+        raise ValueError(f"bag {path}: not a run recording (per tick one joint state, skin frame and command)")
+    recorded, replayed = [], []
+    for j, s, c in zip(joints, skins, cmds):
+        pos, vel = decode_joint_state(j.msg, cfg.joint_names)
+        if round(j.time, 9) in resets:
+            controller.reset(pos)
+        replayed.append(controller.step(pos, vel, processor(decode_tactile(s.msg, cfg.tactile_fields))))
+        recorded.append(decode_joint_state(c.msg, cfg.joint_names)[0])
+    return np.asarray(recorded), np.asarray(replayed)
 
 
 def record_steps(cfg: RosConfig, targets: np.ndarray, out: str | Path) -> Path:
-    """Command `targets` (T, 16) at rate_hz and save the joint recording for `tacgnn sysid`.
+    """Command `targets` (T, 16) at rate_hz and save a bag for `tacgnn sysid` (or .npz/.csv).
 
-    Sample t is the newest joint state read just before targets[t] is published.
+    The bag holds every joint state as received and every command as sent; sample t of
+    the recording is the newest joint state read just before targets[t] is published.
     """
+    from tacgnn.real.bag import BagWriter
     from tacgnn.tools.joint_recording import JointRecording, save_recording
 
-    node = _Node(cfg)
+    out = Path(out)
+    node = _Node(cfg, "tacgnn_record_steps")
     joints = Latest()
-    node.subscribe(cfg.joint_state_topic, node.JointState, joints)
-    publish = node.joint_command_publisher()
-    deadline = time.monotonic() + 5.0
-    while not joints.fresh(cfg.stale_after_s):
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"no joint states on {cfg.joint_state_topic} within 5 s")
-        time.sleep(0.01)
-    times, measured = [], []
-    start = time.monotonic()
+    bag = BagWriter(out) if out.suffix == ".bag" else None
+    t0 = time.monotonic()
 
-    def step() -> bool:
+    def on_joint_state(msg):
+        joints(msg)
+        if bag is not None:
+            bag.write_msg(cfg.joint_state_topic, msg, joints.stamp - t0 + 1.0)
+
+    node.subscribe(cfg.joint_state_topic, node.JointState, on_joint_state)
+    publish = node.publisher(cfg.joint_cmd_topic, node.JointState)
+    node.wait_for(f"joint state on {cfg.joint_state_topic}", joints, cfg.startup_timeout_s)
+    decode_joint_state(joints.msg, cfg.joint_names)  # names checked before the first command
+    times, measured = [], []
+
+    def step(_scheduled: float) -> bool:
         t = len(measured)
         if t == len(targets):
             return False
-        times.append(time.monotonic() - start)
+        now = time.monotonic()
+        times.append(now - t0)
         measured.append(decode_joint_state(joints.msg, cfg.joint_names)[0])
-        publish(targets[t])
+        msg = node.joint_state(targets[t])
+        publish(msg)
+        if bag is not None:
+            bag.write_msg(cfg.joint_cmd_topic, msg, now - t0 + 1.0)
         return True
 
-    node.loop(step)
+    try:
+        node.loop(step)
+    finally:
+        if bag is not None:
+            bag.close()
+    node.shutdown("recording done")
+    if bag is not None:
+        return out
     rec = JointRecording(np.asarray(times), np.asarray(targets[:len(measured)], np.float64), np.asarray(measured),
                          source=str(out))
     return save_recording(rec, out)
 
 
 def record_skin(cfg: RosConfig, frames: int, out: str | Path, layout=None) -> Path:
-    """Save `frames` raw skin frames as .npz, one (frames, patch size) array per patch name."""
+    """Save `frames` skin messages: as received in a .bag, or one (frames, size) array per patch in a .npz."""
     from tacgnn.hand.skin_layout import default_skin
+    from tacgnn.real.bag import BagWriter
 
     layout = layout or default_skin()
-    node = _Node(cfg)
-    skin = Latest()
-    node.subscribe(cfg.tactile_topic, import_message(cfg.tactile_type), skin)
-    rows: list[dict[str, np.ndarray]] = []
-    last = [skin.stamp]
-
-    def step() -> bool:
-        if skin.fresh(cfg.stale_after_s) and skin.stamp != last[0]:  # each driver frame once
-            rows.append(decode_tactile(skin.msg, cfg.tactile_fields))
-            last[0] = skin.stamp
-        return len(rows) < frames
-
-    node.loop(step)
-    arrays = {p.name: np.stack([r[p.name] for r in rows]) for p in layout.patches}
     out = Path(out)
+    node = _Node(cfg, "tacgnn_record_skin")
+    tactile_cls = tactile_message_class(cfg)
+    received: list[Any] = []
+    done = threading.Event()
+
+    def on_skin(msg):
+        if len(received) < frames:
+            received.append((time.monotonic(), msg))
+        if len(received) >= frames:
+            done.set()
+
+    node.subscribe(cfg.tactile_topic, tactile_cls, on_skin)
+    deadline = time.monotonic() + cfg.startup_timeout_s + 2 * frames / cfg.rate_hz
+    while not done.wait(0.05):
+        node.spin_once()
+        if time.monotonic() > deadline or not node.ok():
+            raise TimeoutError(f"only {len(received)} of {frames} skin frames on {cfg.tactile_topic} in time")
+    node.shutdown("recording done")
+    if out.suffix == ".bag":
+        t0 = received[0][0]
+        with BagWriter(out, {tactile_cls._type: tactile_cls._full_text}) as bag:
+            for t, msg in received:
+                bag.write_msg(cfg.tactile_topic, msg, t - t0 + 1.0)
+        return out
+    rows = [decode_tactile(msg, cfg.tactile_fields) for _, msg in received]
+    arrays = {p.name: np.stack([r[p.name] for r in rows]) for p in layout.patches}
     out.parent.mkdir(parents=True, exist_ok=True)
     np.savez(out, **arrays)
     return out

@@ -235,15 +235,18 @@ def patch_gain_from_load(calibration: SkinCalibration, raw_frames: np.ndarray, p
 
 
 def load_raw_frames(path: str | Path, layout: SkinLayout | None = None) -> np.ndarray:
-    """(N, T) raw frames in driver order from an .npz of per-patch arrays.
+    """(N, T) raw frames in driver order from a ROS 1 bag or an .npz of per-patch arrays.
 
-    The file holds one (N, patch size) array per patch, named by patch (what
-    ``tacgnn real-hand record-skin`` writes), or a single (N, T) array named ``raw``.
+    A .bag holds the skin messages (``tacgnn real-hand record-skin``, default topic and
+    fields of `tacgnn.real.ros.RosConfig`); an .npz one (N, patch size) array per patch,
+    named by patch, or a single (N, T) array named ``raw``.
     """
     layout = layout or default_skin()
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"skin frames {path}: file not found")
+    if path.suffix == ".bag":
+        return _frames_from_bag(path, layout)
     try:
         with np.load(path, allow_pickle=False) as data:
             contents = {k: data[k] for k in data.files}
@@ -272,3 +275,14 @@ def load_raw_frames(path: str | Path, layout: SkinLayout | None = None) -> np.nd
         raise CalibrationError(f"skin frames {path}: non-finite values at (frame, taxel) "
                                f"{np.argwhere(~np.isfinite(frames))[0].tolist()}")
     return frames
+
+
+def _frames_from_bag(path: Path, layout: SkinLayout) -> np.ndarray:
+    from tacgnn.real.bag import BagError, skin_frames_from_bag
+    from tacgnn.real.ros import RosConfig
+
+    ros = RosConfig()
+    try:
+        return skin_frames_from_bag(path, ros.tactile_topic, ros.tactile_fields, layout)
+    except BagError as err:
+        raise CalibrationError(str(err)) from err

@@ -6,7 +6,12 @@ control rate (50 Hz on the Allegro hand). Sample t holds the joint angles measur
 The replay (`tacgnn.tools.sysid`) starts at rest at ``measured[0]``, so start recording
 with the hand still.
 
-Two file formats, the same content:
+Three file formats, the same content:
+
+``.bag`` (ROS 1, what ``tacgnn real-hand record-steps`` writes): the joint states as
+    received on ``/allegroHand_0/joint_states`` and the commands as sent on
+    ``/allegroHand_0/joint_cmd`` (``sensor_msgs/JointState``, driver joint names); sample t
+    is command t with the newest joint state received before it.
 
 ``.npz`` (numpy): arrays
     ``time``      (T,)    seconds, strictly increasing, evenly spaced
@@ -115,9 +120,23 @@ def load_recording(path: str | Path) -> JointRecording:
         arrays = _read_npz(path)
     elif suffix == ".csv":
         arrays = _read_csv(path)
+    elif suffix == ".bag":
+        return _read_bag(path)
     else:
-        raise RecordingError(f"recording {path}: unknown format '{suffix}' (use .npz or .csv)")
+        raise RecordingError(f"recording {path}: unknown format '{suffix}' (use .bag, .npz or .csv)")
     return JointRecording(**arrays, source=str(path))
+
+
+def _read_bag(path: Path) -> JointRecording:
+    """A ROS 1 bag of `tacgnn real-hand record-steps`, on the Allegro driver's default topics."""
+    from tacgnn.real.bag import BagError, joint_recording_from_bag
+    from tacgnn.real.ros import RosConfig
+
+    ros = RosConfig()
+    try:
+        return joint_recording_from_bag(path, ros.joint_state_topic, ros.joint_cmd_topic, ros.joint_names)
+    except BagError as err:
+        raise RecordingError(str(err)) from err
 
 
 def _read_npz(path: Path) -> dict:

@@ -1,0 +1,256 @@
+"""The simulator playing the real hand over ROS 1: the Allegro driver's topics, the Baoding task.
+
+`tacgnn real-hand sim-hand` runs one Baoding env in real time and speaks the driver's
+part: joint states at the control rate on the joint-state topic, one skin message per
+control step (one raw array per patch), joint commands in. Each control period it
+applies the newest command (or holds the last one), steps the env one control step and
+publishes what the hand then measures. Episodes end as in the env (success, a ball
+falling, timeout); the env resets and the new episode number goes out on the episode
+topic, so `tacgnn real-hand run` restarts its episode as the env would. After the last
+episode it publishes -1 (the controller stops) and writes a summary (success rate as
+`tacgnn evaluate` counts it).
+
+What a real hand adds can be switched on: a transport latency, dropped joint-state or
+skin messages, noise on the joint angles and the skin, dead taxels. The skin is sent as
+raw numbers, ``baseline + readings / gain`` (+ noise), so `tacgnn calibrate-skin` on a
+recording of it at rest recovers the simulator's readings.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from tacgnn.config import check
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.observation import target_to_action
+from tacgnn.real.ros import RosConfig, _Node, tactile_message_class
+
+log = logging.getLogger("tacgnn.real")
+
+
+@dataclass(frozen=True)
+class SimHandConfig:
+    task: str = "simple"
+    episodes: int = 64
+    seed: int = 0
+    latency_s: float = 0.0
+    """Delay of every message the hand sends (joint states, skin)."""
+    drop_tactile: float = 0.0
+    """Probability that a skin message is lost."""
+    drop_joint_states: float = 0.0
+    joint_noise_rad: float = 0.0
+    """Std of Gaussian noise on the published joint angles."""
+    skin_baseline: float = 10.0
+    """Raw value of an untouched taxel."""
+    skin_gain: float = 1.0
+    """Newtons per raw unit (raw = baseline + readings / gain)."""
+    skin_noise: float = 0.0
+    """Std of Gaussian noise on the raw skin values."""
+    dead_taxels: float = 0.0
+    """Fraction of taxels that always send 0."""
+    rest_steps: int = 0
+    """If > 0: hold the start pose with no balls for this many steps first (skin at rest, for
+    `record-skin` and `calibrate-skin`), then stop without running episodes."""
+    start_delay_s: float = 1.0
+    """Least time (s) the start state is published before the first step; the first step also
+    waits for the first command."""
+    wait_for_controller_s: float = 120.0
+    """Give up when no command came within this time."""
+
+    def __post_init__(self) -> None:
+        check(self.task in ("simple", "middle", "hard"), "task", f"must be simple, middle or hard, got {self.task!r}")
+        check(self.episodes >= 1, "episodes", "must be >= 1")
+        check(self.latency_s >= 0, "latency_s", "must be >= 0")
+        for name in ("drop_tactile", "drop_joint_states", "dead_taxels"):
+            check(0 <= getattr(self, name) < 1, name, "must be in [0, 1)")
+        check(self.joint_noise_rad >= 0 and self.skin_noise >= 0, "skin_noise", "noise must be >= 0")
+        check(self.skin_gain > 0, "skin_gain", "must be positive")
+
+
+class DelayedPublisher:
+    """Publishes callables' messages `latency_s` after they are handed over, from one thread."""
+
+    def __init__(self, latency_s: float):
+        self.latency = latency_s
+        self._queue: list[tuple[float, int, Callable[[Any], None], Any]] = []
+        self._count = 0
+        self._wake = threading.Condition()
+        self._closed = False
+        if latency_s > 0:
+            threading.Thread(target=self._run, daemon=True).start()
+
+    def __call__(self, publish: Callable[[Any], None], msg: Any) -> None:
+        if self.latency <= 0:
+            publish(msg)
+            return
+        with self._wake:
+            heapq.heappush(self._queue, (time.monotonic() + self.latency, self._count, publish, msg))
+            self._count += 1
+            self._wake.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._wake:
+                while not self._closed and (not self._queue or self._queue[0][0] > time.monotonic()):
+                    self._wake.wait(None if not self._queue else max(0.0, self._queue[0][0] - time.monotonic()))
+                if self._closed:
+                    return
+                _, _, publish, msg = heapq.heappop(self._queue)
+            publish(msg)
+
+    def close(self) -> None:
+        with self._wake:
+            self._closed = True
+            self._wake.notify()
+
+
+class SimHand:
+    """One Baoding env behind the Allegro driver's topics (see the module docstring)."""
+
+    def __init__(self, env_config: BaodingConfig, cfg: SimHandConfig, ros: RosConfig):
+        self.cfg, self.ros = cfg, ros
+        env_cfg = replace(env_config, num_envs=1, task=cfg.task, seed=cfg.seed, obs_mode="groundtruth", tactile=True)
+        self.env = BaodingEnv(env_cfg)
+        self.rng = np.random.default_rng(cfg.seed + 1)
+        n = self.env.tactile.num_taxels
+        self.dead = self.rng.random(n) < cfg.dead_taxels
+        self.layout = env_cfg.skin
+        self.offsets = self.layout.offsets()
+        fields = dict(ros.tactile_fields)
+        missing = [p.name for p in self.layout.patches if p.name not in fields]
+        if missing:
+            raise ValueError(f"ros.tactile_fields has no field for patches {missing}")
+        self.fields = [fields[p.name] for p in self.layout.patches]
+        self.results: list[dict] = []
+
+    def raw_skin(self, readings: np.ndarray) -> np.ndarray:
+        c = self.cfg
+        raw = c.skin_baseline + readings / c.skin_gain
+        if c.skin_noise > 0:
+            raw = raw + c.skin_noise * self.rng.standard_normal(raw.shape)
+        raw = np.where(self.dead, 0.0, raw)
+        return raw.astype(np.float32)
+
+    def run(self, summary_path: str | Path | None = None) -> dict:
+        cfg, ros, env = self.cfg, self.ros, self.env
+        node = _Node(ros, "tacgnn_sim_hand")
+        tactile_cls = tactile_message_class(ros)
+        pub_joints = node.publisher(ros.joint_state_topic, node.JointState)
+        pub_skin = node.publisher(ros.tactile_topic, tactile_cls)
+        pub_episode = node.publisher(ros.episode_topic, node.Int32, latch=True) if ros.episode_topic else None
+        command = {"target": None, "count": 0}
+
+        def on_command(msg):
+            from tacgnn.real.ros import decode_joint_state
+
+            command["target"] = decode_joint_state(msg, ros.joint_names)[0]
+            command["count"] += 1
+
+        node.subscribe(ros.joint_cmd_topic, node.JointState, on_command)
+        send = DelayedPublisher(cfg.latency_s)
+        low, high = env.joint_low, env.joint_high
+
+        def publish_state(readings: np.ndarray) -> None:
+            q = env.joint_pos[0] + cfg.joint_noise_rad * self.rng.standard_normal(16) if cfg.joint_noise_rad \
+                else env.joint_pos[0]
+            if self.rng.random() >= cfg.drop_joint_states:
+                send(pub_joints, node.joint_state(q, env.joint_vel[0]))
+            raw = self.raw_skin(readings)
+            if self.rng.random() >= cfg.drop_tactile:
+                msg = tactile_cls()
+                for i, attr in enumerate(self.fields):
+                    setattr(msg, attr, raw[self.offsets[i]:self.offsets[i + 1]].tolist())
+                send(pub_skin, msg)
+
+        obs, _ = env.reset(seed=cfg.seed)
+        if cfg.rest_steps:  # the balls far away: a skin at rest
+            for b, x in zip(env.ball_qpos_adr, (0.0, 0.3)):
+                env.sim.qpos[0, b:b + 3] = (x, 0.0, -1.0)
+            env.sim.forward()
+        readings = env.tactile_readings()[0]
+        episode = 0
+        hold = env.last_action[0].copy()
+        period = ros.period
+        next_time = time.monotonic()
+        warmup = max(1, int(round(cfg.start_delay_s / period)))
+        steps = late = 0
+        t_start = time.monotonic()
+
+        def tick_wait() -> None:
+            nonlocal next_time, late
+            delay = next_time - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif -delay > period:
+                late += 1
+            next_time += period
+
+        try:
+            for _ in range(cfg.rest_steps):
+                tick_wait()
+                publish_state(env.tactile_readings()[0])
+            waited = 0  # the start pose, until a controller commands (at least `warmup` periods)
+            while not cfg.rest_steps and node.ok() and (waited < warmup or command["count"] == 0):
+                if waited * period > cfg.wait_for_controller_s:
+                    raise TimeoutError(f"no joint command on {ros.joint_cmd_topic} within "
+                                       f"{cfg.wait_for_controller_s:.0f} s: is the controller running?")
+                tick_wait()
+                publish_state(readings)
+                waited += 1
+            if not cfg.rest_steps and node.ok():  # the episode's number, then its first state
+                tick_wait()
+                if pub_episode is not None:
+                    send(pub_episode, node.Int32(data=episode))
+                publish_state(readings)
+            command["target"] = None  # commands from before the episode started do not count
+            while node.ok() and not cfg.rest_steps:
+                tick_wait()
+                if command["target"] is not None:
+                    hold = target_to_action(np.clip(command["target"], low, high), low, high)
+                    command["target"] = None
+                obs, _, terminated, truncated, info = env.step(hold[None])
+                steps += 1
+                if not (terminated[0] or truncated[0]):
+                    publish_state(info["tactile"][0])
+                    continue
+                self.results.append({"episode": episode, "success": bool(info["success"][0]),
+                                     "fall": bool(info["fall"][0]), "timeout": bool(info["timeout"][0]),
+                                     "steps": int(info["episode_steps"][0]),
+                                     "angle_deg": float(info["angle_deg"][0])})
+                episode += 1
+                if episode >= cfg.episodes:
+                    break
+                hold = env.last_action[0].copy()  # the env reset: its start pose
+                command["target"] = None
+                if pub_episode is not None:  # the new episode's number, then its first state
+                    send(pub_episode, node.Int32(data=episode))
+                publish_state(env.tactile_readings()[0])
+        finally:
+            if pub_episode is not None and node.ok():
+                send(pub_episode, node.Int32(data=-1))
+            time.sleep(0.5 + cfg.latency_s)
+            send.close()
+        summary = self.summary(steps, late, command["count"], time.monotonic() - t_start)
+        if summary_path:
+            Path(summary_path).parent.mkdir(parents=True, exist_ok=True)
+            Path(summary_path).write_text(json.dumps(summary, indent=1))
+        node.shutdown("simulated hand done")
+        return summary
+
+    def summary(self, steps: int, late: int, commands: int, seconds: float) -> dict:
+        n = len(self.results)
+        wins = sum(r["success"] for r in self.results)
+        return {"task": self.cfg.task, "episodes": n, "success_rate": wins / n if n else float("nan"),
+                "fall_rate": sum(r["fall"] for r in self.results) / n if n else float("nan"),
+                "steps": steps, "commands_received": commands, "late_steps": late, "seconds": round(seconds, 2),
+                "latency_s": self.cfg.latency_s, "drop_tactile": self.cfg.drop_tactile,
+                "drop_joint_states": self.cfg.drop_joint_states, "results": self.results}

@@ -1,0 +1,150 @@
+"""The real-hand path through a real ROS 1 master on loopback, with the simulator as the hand.
+
+`tacgnn real-hand sim-hand` plays the Allegro driver; `tacgnn real-hand run` controls it
+as it would a real hand. Needs ROS 1 (roscore, rospy): `make test-ros` installs it where
+apt-get is available; elsewhere these tests skip and say so.
+"""
+
+import importlib.util
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+HAVE_ROS = shutil.which("roscore") is not None and importlib.util.find_spec("rospy") is not None
+pytestmark = pytest.mark.skipif(not HAVE_ROS, reason="ROS 1 is not installed (roscore and rospy): "
+                                                     "`make test-ros` installs it where apt-get is available")
+TIMEOUT = 240
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def ros_env(tmp_path_factory):
+    """A roscore on a free loopback port, and the environment that points nodes at it."""
+    home = tmp_path_factory.mktemp("ros")
+    port = _free_port()
+    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_HOSTNAME": "127.0.0.1",
+           "ROS_IP": "127.0.0.1", "ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log"), "MUJOCO_GL": "egl"}
+    core = subprocess.Popen(["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 30
+    while True:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                break
+        if time.monotonic() > deadline or core.poll() is not None:
+            core.kill()
+            pytest.fail("roscore did not start within 30 s")
+        time.sleep(0.2)
+    time.sleep(1.0)  # rosout registers
+    yield env
+    core.terminate()
+    try:
+        core.wait(10)
+    except subprocess.TimeoutExpired:
+        core.kill()
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory):
+    from real_policy import blind_policy
+
+    return blind_policy(tmp_path_factory.mktemp("policy"))
+
+
+def tacgnn(env, action, *args, policy=None) -> subprocess.Popen:
+    extra = ("--policy", str(policy)) if policy else ()
+    return subprocess.Popen([sys.executable, "-m", "tacgnn.cli", "real-hand", action, *extra, *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def finish(proc: subprocess.Popen) -> str:
+    out, _ = proc.communicate(timeout=TIMEOUT)
+    return out
+
+
+@pytest.fixture(scope="module")
+def calibration(ros_env, policy, tmp_path_factory):
+    """record-skin of the simulated hand at rest (a bag), then calibrate-skin on that bag."""
+    d = tmp_path_factory.mktemp("calib")
+    recorder = tacgnn(ros_env, "record-skin", "--out", str(d / "rest.bag"), "--frames", "40")
+    time.sleep(1.0)
+    hand = tacgnn(ros_env, "sim-hand", "--rest-steps", "150", "--skin-noise", "0.05", "--dead-taxels", "0.01",
+                  policy=policy)
+    out = finish(recorder)
+    finish(hand)
+    assert recorder.returncode == 0, out
+    from tacgnn.cli import main
+
+    assert main(["calibrate-skin", str(d / "rest.bag"), "--out", str(d / "calib.npz")]) == 0
+    from tacgnn.real.skin import SkinCalibration
+
+    calib = SkinCalibration.load(d / "calib.npz")
+    assert 0 < calib.dead.sum() < 30  # the simulated hand's dead taxels (1 % of 653) are found
+    np.testing.assert_allclose(calib.baseline[~calib.dead], 10.0, atol=0.05)
+    return d / "calib.npz"
+
+
+def run_pair(env, tmp: Path, calibration: Path, policy: Path, episodes: int = 2, hand_args=(),
+             run_args=()) -> tuple[dict, dict, str]:
+    hand = tacgnn(env, "sim-hand", "--episodes", str(episodes), "--summary", str(tmp / "hand.json"), *hand_args, policy=policy)
+    time.sleep(0.5)
+    ctrl = tacgnn(env, "run", "--calibration", str(calibration), "--stats", str(tmp / "stats.json"), *run_args,
+                  policy=policy)
+    ctrl_out = finish(ctrl)
+    hand_out = finish(hand)
+    assert ctrl.returncode == 0, ctrl_out
+    assert hand.returncode == 0, hand_out
+    return json.loads((tmp / "hand.json").read_text()), json.loads((tmp / "stats.json").read_text()), ctrl_out
+
+
+def test_blind_controller_runs_the_simulated_hand_and_replays_offline(ros_env, calibration, policy, tmp_path):
+    hand, stats, _ = run_pair(ros_env, tmp_path, calibration, policy, run_args=("--record", str(tmp_path / "run.bag")))
+    assert hand["episodes"] == 2 and 0.0 <= hand["success_rate"] <= 1.0
+    steps = sum(r["steps"] for r in hand["results"])
+    assert stats["episodes"] == 2 and stats["commands"] >= steps - 2, stats  # one command per step of the hand
+    assert hand["commands_received"] == stats["commands"]
+
+    from tacgnn.real import ros
+    from tacgnn.real.controller import BlindController, BlindControllerConfig
+    from tacgnn.real.skin import SkinCalibration, SkinProcessor
+
+    controller = BlindController(BlindControllerConfig(policy=str(policy)))
+    processor = SkinProcessor(SkinCalibration.load(calibration), controller.env_config.skin)
+    recorded, replayed = ros.replay_run(tmp_path / "run.bag", ros.RosConfig(), controller, processor)
+    assert len(recorded) == stats["commands"]
+    np.testing.assert_array_equal(replayed, recorded)
+
+
+def test_latency_and_dropped_skin_messages_are_survived(ros_env, calibration, policy, tmp_path):
+    hand, stats, out = run_pair(ros_env, tmp_path, calibration, policy, episodes=1,
+                                hand_args=("--latency-ms", "20", "--drop-tactile", "0.05"))
+    assert hand["episodes"] == 1 and "success_rate" in hand
+    assert stats["commands"] > 0
+
+
+def test_bad_input_stops_before_any_command(ros_env, calibration, policy, tmp_path):
+    hand = tacgnn(ros_env, "sim-hand", "--episodes", "50", "--summary", str(tmp_path / "hand.json"), policy=policy)
+    time.sleep(0.5)
+    names = "joint_names=[" + ",".join(f"j{i}" for i in range(16)) + "]"
+    wrong_names = finish(tacgnn(ros_env, "run", "--calibration", str(calibration), "--set", names, policy=policy))
+    swapped = "tactile_fields=[[palm,index_tip_Value],[index_tip,palm_Value]" + "".join(
+        f",[{p},{f}]" for p, f in __import__("tacgnn.real.ros", fromlist=["x"]).RosConfig().tactile_fields[2:]) + "]"
+    wrong_length = finish(tacgnn(ros_env, "run", "--calibration", str(calibration), "--set", swapped, policy=policy))
+    hand.terminate()
+    finish(hand)
+    assert "joint state names do not match ros.joint_names" in wrong_names
+    assert "patch 'palm' has 72 values, expected 113" in wrong_length
+    assert json.loads((tmp_path / "hand.json").read_text())["commands_received"] == 0
