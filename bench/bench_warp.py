@@ -1,6 +1,6 @@
 """Env steps/s and the skin's cost on both physics backends: MuJoCo's C engine and MuJoCo Warp.
 
-Run: .venv/bin/python bench/bench_warp.py [--envs 16 64] [--steps 20] [--device cpu|cuda:0]
+Run: .venv/bin/python bench/bench_warp.py [--envs 16 64] [--steps 20] [--device cpu|cuda:0] [--check]
 Prints one table. Each row runs the Baoding env (skin on) for `--steps` control steps
 of a scripted finger wave after a warm-up, and times:
 
@@ -86,6 +86,37 @@ def bench(backend: str, num_envs: int, steps: int, device: str) -> dict:
     return row
 
 
+def equivalence(num_envs: int, device: str, states: int = 5) -> dict:
+    """Max gaps of one control step on Warp from the C engine's states (randomised physics
+    but ball mass, middle task's kicks), and of the torch skin from the compiled one."""
+    from tacgnn.envs.baoding import RandomizationConfig
+    from tacgnn.sim.tactile_device import DeviceTactile
+
+    cfg = BaodingConfig(num_envs=num_envs, task="middle", disturbance_interval=1,
+                        randomization=RandomizationConfig(enabled=True, ball_mass=(0.15, 0.15)))
+    c = BaodingEnv(cfg)
+    w = BaodingEnv(replace(cfg, sim=replace(cfg.sim, backend="warp", device=device)))
+    skin = DeviceTactile(cfg.skin, c.model)
+    c.reset(seed=0)
+    rng = np.random.default_rng(0)
+    gaps = {"ball gap m": 0.0, "joint gap rad": 0.0, "skin gap N": 0.0}
+    for _ in range(states):
+        for _ in range(10):
+            c.step(np.clip(c.last_action + 0.05 * rng.standard_normal(c.last_action.shape), -1, 1))
+        w.load_state_dict(c.state_dict())
+        c.sim.forward()
+        gaps["skin gap N"] = max(gaps["skin gap N"], float(np.abs(
+            skin.readings(c.sim.sensordata, c.sim.xpos, c.sim.xmat, np.random.default_rng(1))
+            - c.tactile.readings(c.sim.sensordata, c.sim.xpos, c.sim.xmat, np.random.default_rng(1))).max()))
+        action = np.clip(c.last_action + 0.3 * rng.standard_normal(c.last_action.shape), -1, 1)
+        _, _, term, trunc, info_c = c.step(action)
+        _, _, _, _, info_w = w.step(action)
+        ok = ~(term | trunc)  # rows not reset by the step
+        gaps["ball gap m"] = max(gaps["ball gap m"], float(np.abs(info_w["ball_pos"] - info_c["ball_pos"])[ok].max()))
+        gaps["joint gap rad"] = max(gaps["joint gap rad"], float(np.abs(w.joint_pos - c.joint_pos)[ok].max()))
+    return gaps
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--envs", type=int, nargs="+", default=[16, 64])
@@ -95,8 +126,14 @@ def main() -> None:
     parser.add_argument("--backends", nargs="+", default=["c", "warp"], choices=["c", "warp"])
     parser.add_argument("--torch-threads", type=int, default=1,
                         help="torch CPU threads (1: small ops on busy cores are slower threaded)")
+    parser.add_argument("--check", action="store_true",
+                        help="first print the one-step gaps between the backends (same states)")
     args = parser.parse_args()
     torch.set_num_threads(args.torch_threads)
+    if args.check:
+        gaps = equivalence(max(args.envs), args.device)
+        print("one control step, Warp vs C, from the same states: " +
+              ", ".join(f"{k} {v:.2e}" for k, v in gaps.items()), flush=True)
     rows = [bench(b, n, args.steps, args.device) for b in args.backends for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
