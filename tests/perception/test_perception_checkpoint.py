@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from tacgnn.files import FileProblem
-from tacgnn.perception.checkpoint import load_checkpoint, load_model
+from tacgnn.perception.checkpoint import CheckpointError, load_checkpoint, load_model
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import train
 
@@ -24,7 +24,7 @@ def test_bad_checkpoints_fail_naming_the_file(tmp_path):
     with pytest.raises(FileProblem, match="evil.pt"):
         load_checkpoint(tmp_path / "evil.pt")
     torch.save({"format_version": 1, "actor": {}}, tmp_path / "policy.pt")
-    with pytest.raises(ValueError, match="policy.pt: not a tacgnn perception checkpoint"):
+    with pytest.raises(CheckpointError, match="policy.pt: not a tacgnn perception checkpoint"):
         load_checkpoint(tmp_path / "policy.pt")
 
 
@@ -35,7 +35,7 @@ def test_weights_of_another_model_are_refused(dataset, tmp_path):
     payload = torch.load(path, weights_only=True)
     payload["config"]["model"]["mlp_hidden"] = [8, 8]
     torch.save(payload, path)
-    with pytest.raises(ValueError, match="checkpoint.pt: the weights do not fit"):
+    with pytest.raises(CheckpointError, match="checkpoint.pt: the weights do not fit"):
         load_model(path)
 
 

@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from tacgnn.config import ConfigError
+from tacgnn.datasets.store import DatasetError
 from tacgnn.perception.checkpoint import load_checkpoint, load_model
 from tacgnn.perception.data import load_tactile, split
 from tacgnn.perception.objectives import Objective
@@ -97,7 +98,7 @@ def test_output_bias_starts_at_the_mean_label(dataset, tmp_path):
 
 
 def test_wrong_dataset_and_config_values_are_named(dataset, tmp_path):
-    with pytest.raises(ValueError, match="kind='baoding'"):
+    with pytest.raises(DatasetError, match="kind='baoding'"):
         train(PerceptionTrainConfig.for_task("cube", "mlp", epochs=1), dataset, tmp_path / "x")
     with pytest.raises(ConfigError, match="out_dim"):
         PerceptionTrainConfig(task="cube")

@@ -20,6 +20,11 @@ from tacgnn.perception.models import PerceptionModel, PerceptionModelConfig, bui
 from tacgnn.perception.train_config import PerceptionTrainConfig
 
 CHECKPOINT_VERSION = 1
+
+
+class CheckpointError(ValueError):
+    """A file that is not a perception checkpoint, or whose weights do not fit its config; names the file."""
+
 #: Values of config keys added after format version 1 was fixed, as checkpoints without them
 #: were trained (the paper's setup); filled in on loading, so old checkpoints keep working.
 LEGACY_TRAIN_VALUES = {"lr_schedule": "constant", "lr_final": 0.01, "lr_decay": 0.8, "warmup_epochs": 0.0,
@@ -39,15 +44,16 @@ def load_checkpoint(path: str | Path) -> dict:
     """Read and check a perception checkpoint.
 
     Raises FileNotFoundError (missing), :class:`tacgnn.files.FileProblem` (empty, truncated,
-    not a torch file, or holding objects other than tensors and plain data) and ValueError
-    (a torch file that is not a perception checkpoint of this format), each naming the file.
+    not a torch file, or holding objects other than tensors and plain data) and
+    :class:`CheckpointError` (a torch file that is not a perception checkpoint of this
+    format), each naming the file.
     """
     path = Path(path)
     payload = read_weights(path, "perception checkpoint")
     if not isinstance(payload, dict) or payload.get("format_version") != CHECKPOINT_VERSION:
-        raise ValueError(f"{path}: not a tacgnn perception checkpoint of version {CHECKPOINT_VERSION}")
+        raise CheckpointError(f"{path}: not a tacgnn perception checkpoint of version {CHECKPOINT_VERSION}")
     if not {"config", "model", "dataset"} <= payload.keys():  # e.g. a policy checkpoint
-        raise ValueError(f"{path}: not a tacgnn perception checkpoint (no model, config and dataset)")
+        raise CheckpointError(f"{path}: not a tacgnn perception checkpoint (no model, config and dataset)")
     config = payload.get("config")
     if isinstance(config, dict):  # written before these keys existed: it was trained with their old values
         for key, value in LEGACY_TRAIN_VALUES.items():
@@ -67,10 +73,14 @@ def load_model(path: str | Path) -> tuple[PerceptionModel, PerceptionTrainConfig
     """The trained model (eval mode), its training config, and the dataset metadata it saw."""
     payload = load_checkpoint(path)
     cfg = from_dict(PerceptionTrainConfig, payload["config"])
-    model = make_model(cfg.model, payload.get("rest_positions_cm"))
+    rest = payload.get("rest_positions_cm")
+    if cfg.model.name == "gcn" and (not isinstance(rest, torch.Tensor) or rest.shape != (cfg.model.num_taxels, 3)):
+        raise CheckpointError(f"{path}: a GCN checkpoint without the rest positions ({cfg.model.num_taxels}, 3) "
+                              "its graph was built from")
+    model = make_model(cfg.model, rest)
     try:
         model.load_state_dict(payload["model"])
     except RuntimeError as err:  # weights of another architecture than the stored config
         first = str(err).strip().splitlines()[0]
-        raise ValueError(f"{path}: the weights do not fit the model of its config ({first})") from None
+        raise CheckpointError(f"{path}: the weights do not fit the model of its config ({first})") from None
     return model.eval(), cfg, payload["dataset"]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from tacgnn.datasets.store import load, read_manifest
+from tacgnn.datasets.store import DatasetError, load, read_manifest
 from tacgnn.perception.objectives import CM, TaskName, targets
 
 
@@ -43,11 +43,15 @@ def dataset_kind(task: TaskName) -> str:
 
 
 def load_tactile(root: str | Path, task: TaskName, max_samples: int = 0, joints: bool = False) -> TactileData:
-    """Read a dataset for `task` (checks that its kind matches); `joints` also reads the joint angles."""
+    """Read a dataset for `task`; `joints` also reads the joint angles.
+
+    Raises :class:`~tacgnn.datasets.store.DatasetError` naming the folder when the dataset
+    is missing, corrupt, or of another kind than the task needs.
+    """
     meta = read_manifest(root)["metadata"]
     kind = dataset_kind(task)
     if meta.get("kind") != kind or (kind == "grasp" and meta.get("object") != task):
-        raise ValueError(f"{root}: dataset is kind={meta.get('kind')!r} object={meta.get('object')!r}, "
+        raise DatasetError(f"{root}: dataset is kind={meta.get('kind')!r} object={meta.get('object')!r}, "
                          f"task '{task}' needs kind={kind!r}" + ("" if kind == "baoding" else f" object={task!r}"))
     fields = ["tactile", "taxel_pos", "ball_pos"] if kind == "baoding" else \
         ["tactile", "taxel_pos", "object_pos", "object_rot"]

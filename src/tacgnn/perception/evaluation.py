@@ -7,8 +7,8 @@ from pathlib import Path
 
 import torch
 
-from tacgnn.config import from_dict
-from tacgnn.datasets.store import read_manifest
+from tacgnn.config import ConfigError, from_dict
+from tacgnn.datasets.store import DatasetError, read_manifest
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.checkpoint import load_model
 from tacgnn.perception.data import TactileData, load_tactile, split
@@ -29,7 +29,7 @@ def patch_taxels(skin: SkinLayout | dict, patch: str) -> torch.Tensor:
         skin = from_dict(SkinLayout, skin)
     names = [p.name for p in skin.patches]
     if patch not in names:
-        raise ValueError(f"no skin patch named {patch!r}; the skin has {', '.join(names)}")
+        raise ConfigError(f"no skin patch named {patch!r}; the skin has {', '.join(names)}")
     i = names.index(patch)
     start, stop = skin.offsets()[i:i + 2]
     return torch.arange(int(start), int(stop))
@@ -38,7 +38,7 @@ def patch_taxels(skin: SkinLayout | dict, patch: str) -> torch.Tensor:
 def dead_taxels(num_taxels: int, fraction: float, seed: int) -> torch.Tensor:
     """A seeded random ``round(fraction * T)`` of the taxels, as a broken skin would lose them."""
     if not 0.0 <= fraction <= 1.0:
-        raise ValueError(f"the dead taxel fraction must be in [0, 1], got {fraction}")
+        raise ConfigError(f"the dead taxel fraction must be in [0, 1], got {fraction}")
     gen = torch.Generator().manual_seed(seed)
     return torch.randperm(num_taxels, generator=gen)[:int(round(fraction * num_taxels))]
 
@@ -89,7 +89,7 @@ def _test_frames(cfg, dataset: str | Path, whole: bool) -> TactileData:
     """The frames a training run never saw: its test split (same max_samples), or all frames."""
     data = load_tactile(dataset, cfg.task, 0 if whole else cfg.max_samples, joints=cfg.model.joint_inputs > 0)
     if data.readings.shape[1] != cfg.model.num_taxels:
-        raise ValueError(f"{dataset}: has {data.readings.shape[1]} taxels, the model was trained on "
+        raise DatasetError(f"{dataset}: has {data.readings.shape[1]} taxels, the model was trained on "
                          f"{cfg.model.num_taxels}")
     return data if whole else split(data, cfg.train_fraction, cfg.seed)[1]
 

@@ -20,7 +20,13 @@ import torch
 from tacgnn.config import to_dict
 from tacgnn.datasets.store import read_manifest
 from tacgnn.files import atomic_write_text
-from tacgnn.perception.checkpoint import CHECKPOINT_VERSION, load_checkpoint, make_model, save_checkpoint
+from tacgnn.perception.checkpoint import (
+    CHECKPOINT_VERSION,
+    CheckpointError,
+    load_checkpoint,
+    make_model,
+    save_checkpoint,
+)
 from tacgnn.perception.data import load_tactile, split
 from tacgnn.perception.evaluation import predict
 from tacgnn.perception.objectives import Objective
@@ -104,7 +110,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
         payload = load_checkpoint(ckpt_path)
         if payload["config"] != to_dict(cfg):
             diff = [k for k in payload["config"] if payload["config"][k] != to_dict(cfg).get(k)]
-            raise ValueError(f"{ckpt_path}: was trained with another config (differs in {diff})")
+            raise CheckpointError(f"{ckpt_path}: was trained with another config (differs in {diff})")
         model.load_state_dict(payload["model"])
         optim.load_state_dict(payload["optimizer"])
         history, start_epoch = payload["history"], payload["epoch"] + 1

@@ -122,7 +122,7 @@ class PerceptionModelConfig:
               f"must be in (0, 1], got {self.sample_ratio!r}")
         layers = range(len(self.k))
         check(all(_is_int(i) and i in layers for i in self.downsample_layers), "downsample_layers",
-              f"must be layer indices in {list(layers)}, got {self.downsample_layers}")
+              f"must be layer indices in {list(layers)} (one layer per entry of k), got {self.downsample_layers}")
         check(len(set(self.downsample_layers)) == len(self.downsample_layers), "downsample_layers",
               f"has duplicates: {self.downsample_layers}")
         check(self.force_feature in FORCE_FEATURES, "force_feature",
