@@ -202,8 +202,11 @@ def cmd_train_perception(args) -> int:
 
 
 def cmd_eval_perception(args) -> int:
-    from tacgnn.perception.evaluation import evaluate, patch_loss
+    from tacgnn.datasets.store import read_manifest
+    from tacgnn.perception.evaluation import evaluate, patch_loss, patch_taxels
 
+    for patch in args.lose_patch:  # an unknown patch name fails before any evaluation
+        patch_taxels(read_manifest(args.dataset)["metadata"]["skin"], patch)
     for dead in args.dead:
         metrics = evaluate(args.checkpoint, args.dataset, dead_fraction=dead, seed=args.seed, whole=args.whole)
         print(f"dead taxels {dead:.0%}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
