@@ -175,7 +175,7 @@ def knn_table(x: Tensor, counts: Tensor, k: int, loop: bool = False) -> Tensor:
 
     ``K = max(1, min(k, N - 1 + loop))`` for the largest graph N; slots a small graph
     cannot fill repeat its nearest neighbour, a lone node gets itself (as
-    ``TacGNN._neighbours``). ``x (V, 3)`` float32 on CPU, graphs as consecutive rows of
+    ``models.graphs.TorchGraphs``). ``x (V, 3)`` float32 on CPU, graphs as consecutive rows of
     ``counts (B,)`` nodes.
     """
     knn, _, _ = _compile()
