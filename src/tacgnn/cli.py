@@ -178,7 +178,15 @@ def cmd_make_dataset(args) -> int:
         cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size,
                                              seed=args.seed, env=env, policy_checkpoint=args.policy or "",
                                              settle_steps=args.settle_steps)
-        baoding_data.generate(cfg, args.out, progress=progress)
+        policy = None
+        if args.policy:
+            from tacgnn.learning.policy import load_policy
+
+            policy, policy_env = load_policy(args.policy)
+            if policy_env.obs_mode != "groundtruth":
+                raise ConfigError(f"--policy {args.policy}: a '{policy_env.obs_mode}' policy; recording needs "
+                                  "a 'groundtruth' one (it reads the true ball positions)")
+        baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
     else:
         cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
                                          grasp=_config(GraspConfig, args, object=args.object))

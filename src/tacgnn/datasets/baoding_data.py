@@ -11,6 +11,12 @@ Samples come from rollouts of a controller that keeps the balls moving (the scri
 `FingerWave` now, a trained policy later). Frames of the first `settle_steps` steps of
 an episode (balls still dropping from the spawn) and the last frame of an episode that
 ended (a ball falling away) are left out.
+
+Every frame also carries what a temporal model needs to put frames back in order: its
+``episode`` (an id unique in the dataset) and ``step`` (control steps since the episode's
+reset), and the ``action`` the hand was commanded in that step (the previous action, as
+the real hand knows it). With ``keep_every=1`` an episode's frames are consecutive steps,
+so windows of consecutive frames can be drawn (`tacgnn.perception.sequences`).
 """
 
 from __future__ import annotations
@@ -35,7 +41,8 @@ class BaodingDataConfig:
     seed: int = 0
     settle_steps: int = 5
     keep_every: int = 2
-    """Record every k-th step of each env (consecutive frames are nearly identical)."""
+    """Record every k-th step of each env (consecutive frames are nearly identical); 1 keeps every
+    frame, which sequence models need."""
     policy_checkpoint: str = ""
     """A ground-truth PPO checkpoint to drive the balls ('' = the scripted finger wave)."""
     action_noise: float = 0.1
@@ -60,7 +67,14 @@ def schema(num_taxels: int) -> dict[str, Field]:
         "joint_pos": Field((16,)),
         "joint_vel": Field((16,)),
         "ball_pos": Field((2, 3)),
+        "action": Field((16,)),
+        "episode": Field((), "int64"),
+        "step": Field((), "int64"),
     }
+
+
+#: Episode ids: the k-th episode of env e in shard i is ``(i * num_envs + e) * EPISODES_PER_ENV + k``.
+EPISODES_PER_ENV = 100_000
 
 
 def metadata(cfg: BaodingDataConfig) -> dict:
@@ -72,21 +86,34 @@ def metadata(cfg: BaodingDataConfig) -> dict:
             "config": to_dict(cfg)}
 
 
-def record_shard(cfg: BaodingDataConfig, index: int,
+Policy = Callable[[np.ndarray], np.ndarray]
+"""A ground-truth policy: (N, 54) observations -> (N, 16) actions (`tacgnn.learning.policy.load_policy`)."""
+
+
+def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = None,
                  controller: Callable[[BaodingEnv, int], Callable] | None = None) -> dict[str, np.ndarray]:
-    """Roll out until one shard's worth of samples is collected; deterministic in (seed, index)."""
+    """Roll out until one shard's worth of samples is collected; deterministic in (seed, index).
+
+    The balls are driven by `controller`, else by `policy` (the ground-truth policy named by
+    `cfg.policy_checkpoint`, loaded by the caller), else by the scripted finger wave.
+    """
     seed = cfg.seed * 100_003 + index
     env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed))
     obs, _ = env.reset(seed=seed)
     if controller is None:
-        controller = policy_controller(cfg) if cfg.policy_checkpoint else \
+        if cfg.policy_checkpoint and policy is None:
+            raise ConfigError(f"policy_checkpoint {cfg.policy_checkpoint}: the caller must load it and pass it as `policy`")
+        controller = policy_controller(policy, cfg.action_noise) if policy is not None else \
             (lambda e, s: FingerWave(e.last_action[0], cfg.num_envs, seed=s))
     act = controller(env, seed)
     out: dict[str, list] = {k: [] for k in schema(env.tactile.num_taxels)}
     count, step = 0, 0
+    episode_of_env = (index * cfg.num_envs + np.arange(cfg.num_envs)) * EPISODES_PER_ENV  # unique in the dataset
     while count < cfg.shard_size:
         obs, _, terminated, truncated, info = env.step(act(obs))
         step += 1
+        episode = episode_of_env.copy()  # of this step's frame; an env that ended starts its next one
+        episode_of_env += terminated | truncated
         # joints of the recorded instant: the pre-reset observation of this step
         joints = info["final_obs"]["proprio"] if "final_obs" in info else obs["proprio"]
         keep = ~(terminated | truncated) & (info["episode_steps"] > cfg.settle_steps)
@@ -98,18 +125,15 @@ def record_shard(cfg: BaodingDataConfig, index: int,
         out["joint_pos"].append(env.joint_low + (joints[keep, :16] + 1) * 0.5 * (env.joint_high - env.joint_low))
         out["joint_vel"].append(joints[keep, 16:32] / 0.2)
         out["ball_pos"].append(info["ball_pos"][keep])
+        out["action"].append(env.last_action[keep])  # the command of this step (clipped), before any reset
+        out["episode"].append(episode[keep])
+        out["step"].append(info["episode_steps"][keep])
         count += int(keep.sum())
     return {k: np.concatenate(v)[:cfg.shard_size] for k, v in out.items()}
 
 
-def policy_controller(cfg: BaodingDataConfig):
+def policy_controller(policy: Policy, action_noise: float):
     """Drive the balls with a ground-truth policy: it sees the true ball positions, plus action noise."""
-    from tacgnn.learning.policy import load_policy
-
-    policy, policy_env = load_policy(cfg.policy_checkpoint)
-    if policy_env.obs_mode != "groundtruth":
-        raise ConfigError(f"policy_checkpoint {cfg.policy_checkpoint}: a '{policy_env.obs_mode}' policy; "
-                          "recording needs 'groundtruth'")
 
     def make(env: BaodingEnv, seed: int):
         rng = np.random.default_rng(seed)
@@ -117,16 +141,16 @@ def policy_controller(cfg: BaodingDataConfig):
         def act(obs: dict) -> np.ndarray:
             proprio = obs["proprio"]  # joint pos (16), 0.2 x vel (16), last action (16)
             full = np.concatenate([proprio[:, :32], env.ball_positions().reshape(-1, 6), proprio[:, 32:]], 1)
-            return np.clip(policy(full) + cfg.action_noise * rng.standard_normal((len(full), 16)), -1, 1)
+            return np.clip(policy(full) + action_noise * rng.standard_normal((len(full), 16)), -1, 1)
 
         return act
 
     return make
 
 
-def generate(cfg: BaodingDataConfig, root: str | Path, progress=None) -> Path:
-    """Generate (or finish generating) the dataset in folder `root`."""
+def generate(cfg: BaodingDataConfig, root: str | Path, progress=None, policy: Policy | None = None) -> Path:
+    """Generate (or finish generating) the dataset in folder `root` (`policy`: see `record_shard`)."""
     writer = ShardedWriter(root, schema(cfg.env.skin.num_taxels), metadata(cfg),
                            num_shards=cfg.samples // cfg.shard_size, shard_size=cfg.shard_size)
-    writer.generate_missing(lambda i: record_shard(cfg, i), progress=progress)
+    writer.generate_missing(lambda i: record_shard(cfg, i, policy), progress=progress)
     return Path(root)
