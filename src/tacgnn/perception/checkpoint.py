@@ -52,6 +52,10 @@ def load_checkpoint(path: str | Path) -> dict:
     payload = read_weights(path, "perception checkpoint")
     if not isinstance(payload, dict) or payload.get("format_version") != CHECKPOINT_VERSION:
         raise CheckpointError(f"{path}: not a tacgnn perception checkpoint of version {CHECKPOINT_VERSION}")
+    if payload.get("kind") == "sequence":  # tacgnn.perception.sequence_checkpoint
+        temporal = isinstance(payload.get("config"), dict) and payload["config"].get("temporal", True)
+        raise CheckpointError(f"{path}: a {'temporal' if temporal else 'sequence-trained'} perception checkpoint "
+                              "(train-perception --temporal/--by-episode); this needs a single-frame one")
     if not {"config", "model", "dataset"} <= payload.keys():  # e.g. a policy checkpoint
         raise CheckpointError(f"{path}: not a tacgnn perception checkpoint (no model, config and dataset)")
     config = payload.get("config")
