@@ -218,3 +218,18 @@ def test_a_policy_of_the_earlier_hand_is_refused_naming_what_differs():
     del env_config["hand"]["torque_limit"]
     with pytest.raises(CheckpointError, match="hand.torque_limit"):
         stored_env_config({"env_config": env_config}, "old.pt")
+
+
+def test_randomised_ball_mass_is_the_mass_the_dynamics_use():
+    cfg = BaodingConfig(num_envs=2, randomization=RandomizationConfig(enabled=True, ball_mass=(0.5, 0.5),
+                                                                       gravity=(9.81, 9.81)))
+    env = BaodingEnv(cfg)
+    for b, adr in enumerate(env.ball_qpos_adr):  # both balls in free air, 1 m above the hand
+        env.sim.qpos[:, adr:adr + 3] = (0.3 * (2 * b - 1), 0.0, 1.0)
+    env.sim.qvel[:] = 0.0
+    env.sim.xfrc_applied[:] = 0.0
+    env.sim.xfrc_applied[:, env.ball_body[0], 2] = 2.0  # 2 N up on ball 0
+    qacc = env.sim.batch.bind("qacc")  # an output array, filled by the next call
+    env.sim.forward(np.arange(2))
+    dof = env.ball_dof_adr[0] + 2
+    assert np.allclose(qacc[:, dof], 2.0 / 0.5 - 9.81, atol=1e-6)  # a = F / m - g with the drawn 0.5 kg

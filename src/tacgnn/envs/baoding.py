@@ -151,8 +151,11 @@ class BaodingConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        check(self.num_envs >= 1, "num_envs", f"must be >= 1, got {self.num_envs}")
+        check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         check(self.max_episode_steps >= 1, "max_episode_steps", "must be >= 1")
+        substeps = self.control_dt / self.sim.timestep
+        check(0 < self.control_dt <= 1 and abs(substeps - round(substeps)) < 1e-6, "control_dt",
+              f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
         steps = self.continuous_seconds / self.control_dt if self.control_dt > 0 else 0.0
         check(self.continuous_seconds > 0 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",
               f"must be a positive whole number of control steps ({self.control_dt} s), got {self.continuous_seconds}")
@@ -160,7 +163,6 @@ class BaodingConfig:
         check(self.ball_mass > 0, "ball_mass", f"must be positive, got {self.ball_mass}")
         check(self.ball_friction > 0, "ball_friction", "must be positive")
         check(len(self.initial_joint_pos) == NUM_JOINTS, "initial_joint_pos", "needs 16 values")
-        check(self.control_dt > 0, "control_dt", "must be positive")
         check(self.success_angle_deg > 0, "success_angle_deg", "must be positive")
         check(self.direction in (1, -1), "direction", "must be +1 or -1")
         check(self.disturbance_interval >= 1, "disturbance_interval", "must be >= 1")
@@ -168,7 +170,8 @@ class BaodingConfig:
         check(self.hold_steps >= 0, "hold_steps", "must be >= 0")
         check(self.long_hold_steps >= 0, "long_hold_steps", "must be >= 0")
         check(self.fall_height[0] < self.fall_height[1], "fall_height", "needs low < high")
-        check(self.spawn_noise >= 0 and self.joint_noise >= 0, "spawn_noise", "noise must be >= 0")
+        check(self.spawn_noise >= 0, "spawn_noise", f"must be >= 0, got {self.spawn_noise}")
+        check(self.joint_noise >= 0, "joint_noise", f"must be >= 0, got {self.joint_noise}")
         check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
               f"obs_mode '{self.obs_mode}' needs tactile: true")
 
@@ -215,8 +218,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         start = m.qpos0.copy()
         start[self.joint_qpos_adr] = self.initial_ctrl
         if self._spawn_overlaps(self._place_balls(start, np.zeros((len(BALLS), 2)))):
-            raise ConfigError("config keys 'spawn_offsets' / 'initial_joint_pos': at the noise-free start "
-                              "the balls overlap each other or the hand")
+            raise ConfigError("config keys 'spawn_offsets' / 'initial_joint_pos' (with 'ball_radius', "
+                              "'spawn_clearance', 'hand.palm_tilt_deg', 'hand.joint_ranges'): at the noise-free "
+                              "start the balls overlap each other or the hand")
 
         n = cfg.num_envs
         self.episode_steps = np.zeros(n, np.int64)
@@ -643,6 +647,7 @@ def randomize(env: BaodingEnv, ids: np.ndarray, u: np.ndarray) -> None:
              r.torque_limit_scale), columns[:-1], columns[1:]))
     sim.expand("body_mass")[np.ix_(ids, env.ball_body)] = ball_mass
     sim.expand("body_inertia")[np.ix_(ids, env.ball_body)] = (0.4 * cfg.ball_radius**2 * ball_mass)[..., None]
+    sim.set_const(ids)  # the balls' mass matrix (dof_M0) follows their new masses
     sim.expand("geom_friction")[ids, :, 0] = model.geom_friction[:, 0] * friction_scale
     sim.expand("opt.gravity")[ids] = np.concatenate([np.zeros((len(ids), 2)), -gravity], axis=1)
     kp = np.asarray(cfg.hand.joint_stiffness()) * stiffness_scale

@@ -58,6 +58,11 @@ class BatchedSim:
         """Per-env (N, ...) values of model field `field` (e.g. 'body_mass', 'opt.gravity')."""
         return self.batch.expand(field)
 
+    def set_const(self, ids: np.ndarray) -> None:
+        """Recompute the constants MuJoCo derives at compile time (a free body's mass matrix,
+        `dof_M0`, among them) for envs `ids` after their masses or inertias changed."""
+        self.batch.set_const(ids)
+
     def reset(self, ids: np.ndarray) -> None:
         """Reset envs `ids` to the model defaults (write qpos etc. after, then `forward`).
 

@@ -181,6 +181,9 @@ class WarpSim:
         views["xmat"] = views["xmat"].reshape(self.num_envs, self.model.nbody, 9)
         return views
 
+    def set_const(self, ids: np.ndarray) -> None:
+        """Nothing to do: MuJoCo Warp derives the mass matrix from `body_mass` every step."""
+
     def expand(self, field: str) -> np.ndarray:
         """Per-env (N, ...) values of model field `field` (e.g. 'body_mass', 'opt.gravity'), writable.
 
