@@ -251,7 +251,7 @@ def cmd_sysid(args) -> int:
     """Identify per-joint stiffness/damping from a recording, or make a simulated recording."""
     from dataclasses import replace
 
-    from tacgnn.envs.baoding import BAODING_RANGES
+    from tacgnn.envs.baoding import BAODING_RANGES, BaodingConfig
     from tacgnn.tools import sysid
     from tacgnn.tools.joint_recording import load_recording, save_recording
 
@@ -282,9 +282,17 @@ def cmd_sysid(args) -> int:
     print(f"{rec.source}: {rec.num_samples} samples, grid {len(grid.stiffness)} x {len(grid.damping)}, "
           f"{result.passes} simulation passes ({time.perf_counter() - start:.1f} s)")
     print(sysid.summary(result, rec))
+    refined = None
+    if args.refine:
+        from tacgnn.tools.sysid_refine import refine, refine_summary
+
+        start = time.perf_counter()
+        refined = refine(rec, result.stiffness, result.damping, cfg)
+        print(f"refined off the grid by least squares (mujoco.sysid, {time.perf_counter() - start:.0f} s):")
+        print(refine_summary(refined, rec))
     base = replace(cfg.hand, joint_ranges=BAODING_RANGES)  # the task's ranges; the replay used the full ones
-    hand_path, report_path = sysid.write_outputs(result, rec, args.out, base)
-    hand = result.hand_config(base)
+    hand_path, report_path = sysid.write_outputs(result, rec, args.out, base, refined)
+    hand = load_yaml(BaodingConfig, hand_path).hand
     print(f"wrote {hand_path} (hand config for --config) and {report_path} (error tables)")
     print("train with the identified hand and domain randomisation:\n  tacgnn train-policy --run-dir runs/dr --env "
           f"randomization.enabled=true 'hand.stiffness={_gain_override(hand.stiffness)}' "
@@ -433,6 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stiffness", type=float, nargs="+", default=[1.0, 3.0, 5.0], help="grid of kp (N m/rad)")
     p.add_argument("--damping", type=float, nargs="+", default=[0.0, 0.1, 0.5], help="grid of damping (N m s/rad)")
     p.add_argument("--refine-passes", type=int, default=3, help="passes with the other joints at their best")
+    p.add_argument("--refine", action="store_true",
+                   help="then fit every joint's gains off the grid (least squares, mujoco.sysid) with 95 %% intervals")
     p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="SysIdConfig keys, e.g. hand.armature=0.002")
     g = p.add_argument_group("simulated recording (no hardware)")
     g.add_argument("--make-recording", metavar="PATH", help="write a simulated recording (.npz/.csv) and exit")

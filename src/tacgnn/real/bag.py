@@ -58,6 +58,24 @@ def _typestore(extra: dict[str, str] | None = None):
     return store
 
 
+def _default_message(store, name: str, fields: dict | None = None) -> Any:
+    from rosbags.interfaces import Nodetype
+
+    values = dict(fields or {})
+    for fname, (kind, detail) in store.fielddefs[name][1]:
+        if fname in values:
+            continue
+        if kind == Nodetype.NAME:
+            values[fname] = _default_message(store, detail)
+        elif kind == Nodetype.BASE:
+            values[fname] = "" if detail[0] == "string" else (False if detail[0] == "bool" else 0)
+        else:  # arrays and sequences: empty (fixed-size arrays of numbers: zeros)
+            (item_kind, item), size = detail
+            numeric = item_kind == Nodetype.BASE and item[0] not in ("string", "bool")
+            values[fname] = np.zeros(size if kind == Nodetype.ARRAY else 0, dtype=item[0]) if numeric else []
+    return store.types[name](**values)
+
+
 class BagWriter:
     """Appends messages to a new ROS 1 bag: rospy messages as they are, or plain values by type.
 
@@ -88,9 +106,8 @@ class BagWriter:
         return self._connections[topic]
 
     def message(self, msgtype: str, **fields) -> Any:
-        """A message object of `msgtype` ('pkg/Type'), unset fields at their defaults."""
-        cls = self.store.types[_store_name(msgtype)]
-        return cls(**fields)
+        """A message object of `msgtype` ('pkg/Type'), unset fields at their defaults (0, '', empty)."""
+        return _default_message(self.store, _store_name(msgtype), fields)
 
     def write(self, topic: str, msgtype: str, msg: Any, time_s: float) -> None:
         data = self.store.serialize_ros1(msg, _store_name(msgtype))

@@ -7,12 +7,12 @@ recorded ones. Here the whole grid runs as one batch of simulations (`BatchedSim
 row per candidate), and the search is per joint:
 
 1. pass 0: candidate c sets every joint to pair c; each joint takes its best pair.
-2. refinement passes: the four joints of a finger are a coupled chain (fingers are
-   independent: they hang off a fixed palm and never touch), so a joint's best pair can
-   depend on what its finger's other joints do. For each joint slot k (j0..j3) and each
-   candidate c, one simulation sets slot k of all fingers to pair c and the other joints
-   to their current best; each joint re-picks with the others at their best. Repeat
-   until nothing changes (usually one pass) or `refine_passes` is reached.
+2. refinement passes: the four joints of a finger are a coupled chain, and fingers can
+   touch each other, so a joint's best pair can depend on what the other joints do. For
+   each joint j and each candidate c, one simulation sets joint j to pair c and every
+   other joint to its current best (16 x C simulations a pass); each joint re-picks with
+   the others at their best. Repeat until nothing changes (usually one pass) or
+   `refine_passes` is reached.
 
 The error reported for a pair is the RMS (rad) over the recording of recorded minus
 simulated angle of that joint, with the other joints at their identified values.
@@ -214,15 +214,15 @@ def identify(rec: JointRecording, cfg: SysIdConfig | None = None) -> SysIdResult
     errors = _rms(sims, rec.measured)
     best = errors.argmin(axis=0)
     passes = 1
-    slot = np.arange(NUM_JOINTS) % JOINTS_PER_FINGER
+    joints = np.arange(NUM_JOINTS)
     for _ in range(cfg.refine_passes):
-        # simulation (k, c): joints in slot k at candidate c, every other joint at its best
-        gains = np.broadcast_to(pairs[best], (JOINTS_PER_FINGER, c, NUM_JOINTS, 2)).copy()
-        for k in range(JOINTS_PER_FINGER):
-            gains[k][:, slot == k] = pairs[:, None, :]
+        # simulation (j, c): joint j at candidate c, every other joint at its best (fingers can
+        # touch each other, so no joint's simulation is shared with another's)
+        gains = np.broadcast_to(pairs[best], (NUM_JOINTS, c, NUM_JOINTS, 2)).copy()
+        gains[joints, :, joints] = pairs
         flat = gains.reshape(-1, NUM_JOINTS, 2)
         err = _rms(replay.run(rec.target, start, flat[..., 0], flat[..., 1]), rec.measured)
-        errors = err.reshape(JOINTS_PER_FINGER, c, NUM_JOINTS)[slot, :, np.arange(NUM_JOINTS)].T  # (C, 16)
+        errors = err.reshape(NUM_JOINTS, c, NUM_JOINTS)[joints, :, joints].T  # (C, 16)
         passes += 1
         new_best = errors.argmin(axis=0)
         if np.array_equal(new_best, best):
@@ -281,21 +281,30 @@ def report(result: SysIdResult, rec: JointRecording) -> dict:
     }
 
 
-def write_outputs(result: SysIdResult, rec: JointRecording, out: str | Path, base_hand: HandConfig) -> tuple[Path, Path]:
+def write_outputs(result: SysIdResult, rec: JointRecording, out: str | Path, base_hand: HandConfig,
+                  refined=None) -> tuple[Path, Path]:
     """Write the hand config (a Baoding config fragment) to `out` and the report beside it.
 
     `out` loads with ``tacgnn <command> --config out.yaml``; the report is
-    ``<out stem>.report.yaml``.
+    ``<out stem>.report.yaml``. With `refined` (a `sysid_refine.RefineResult`) the hand
+    takes the refined gains and the report adds their intervals.
     """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    hand = result.hand_config(base_hand)
+    hand = result.hand_config(base_hand) if refined is None else dataclasses.replace(
+        base_hand, stiffness=tuple(float(f"{v:.4g}") for v in refined.stiffness),
+        damping=tuple(float(f"{v:.4g}") for v in refined.damping))
     header = (f"# Hand identified by tacgnn sysid from {rec.source}.\n"
               "# Use with: tacgnn <command> --config this.yaml  (a Baoding config with only 'hand' set)\n")
     out.write_text(header + yaml.safe_dump({"hand": to_dict(hand)}, sort_keys=False, default_flow_style=None,
                                           width=120))
     report_path = out.with_name(f"{out.stem}.report.yaml")
-    report_path.write_text(yaml.safe_dump(report(result, rec), sort_keys=False, default_flow_style=None, width=120))
+    content = report(result, rec)
+    if refined is not None:
+        from tacgnn.tools.sysid_refine import refine_report
+
+        content["refined"] = refine_report(refined)
+    report_path.write_text(yaml.safe_dump(content, sort_keys=False, default_flow_style=None, width=120))
     return out, report_path
 
 
