@@ -14,6 +14,10 @@ from tacgnn.perception.models import PerceptionModelConfig
         ("name", "transformer"),
         ("channels", 0),
         ("channels", 32.0),
+        ("channels", 32_000_000),
+        ("mlp_hidden", (64, 64_000_000)),
+        ("k", (3,) * 17),
+        ("num_taxels", 653_000),
         ("k", (3, 0, 3)),
         ("k", ()),
         ("sample_ratio", 0.0),
@@ -26,7 +30,6 @@ from tacgnn.perception.models import PerceptionModelConfig
         ("out_dim", -1),
         ("num_taxels", 0),
         ("fps_start", "middle"),
-        ("image_size", 10),
         ("gcn_k", 0),
         ("gcn_channels", (32, 0)),
         ("mlp_hidden", 64),
@@ -53,6 +56,9 @@ def test_nested_keys_are_named_in_full():
 
 
 def test_cross_field_rules():
+    with pytest.raises(ConfigError, match="'image_size'.*num_taxels=653"):
+        PerceptionModelConfig(name="cnn", image_size=10)
+    assert PerceptionModelConfig(name="tacgnn", num_taxels=6530).num_taxels == 6530  # only the CNN has an image
     with pytest.raises(ConfigError, match="force_feature"):
         PerceptionModelConfig(name="tacgnn", reading_feature="log1p")
     assert PerceptionModelConfig(name="mlp", reading_feature="log1p").reading_feature == "log1p"

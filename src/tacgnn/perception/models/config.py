@@ -26,7 +26,11 @@ GCN_NODE_POSITIONS = ("current", "rest")
 POOLS = ("last", "all", "jk", "sum")
 
 _SEQUENCES = ("k", "downsample_layers", "mlp_hidden", "gcn_channels")
-_POSITIVE_INTS = ("out_dim", "num_taxels", "channels", "image_size", "gcn_k", "message_layers", "head_layers")
+#: Upper bounds: far above any useful setting, low enough that a typo (channels=32000000)
+#: is refused when the config loads instead of failing to allocate later.
+_POSITIVE_INTS = {"out_dim": 1024, "num_taxels": 65536, "channels": 4096, "image_size": 512, "gcn_k": 64,
+                  "message_layers": 16, "head_layers": 16}
+_MAX_WIDTH, _MAX_K, _MAX_LAYERS = 4096, 64, 16
 _BOOLS = ("use_force", "self_loop", "exact_graph", "residual")
 
 
@@ -96,6 +100,7 @@ class PerceptionModelConfig:
     mlp_hidden: tuple[int, ...] = (64, 64)
     # --- CNN
     image_size: int = 36
+    """Side of the CNN's square image; it must hold num_taxels pixels."""
     # --- GCN
     gcn_k: int = 6
     gcn_channels: tuple[int, ...] = (32, 32, 32)
@@ -108,16 +113,16 @@ class PerceptionModelConfig:
             check(isinstance(v, (list, tuple)), f, f"must be a sequence of ints, got {v!r}")
             object.__setattr__(self, f, tuple(v))
         check(self.name in MODEL_NAMES, "name", f"must be one of {MODEL_NAMES}, got {self.name!r}")
-        for f in _POSITIVE_INTS:
+        for f, most in _POSITIVE_INTS.items():
             v = getattr(self, f)
-            check(_is_int(v) and v >= 1, f, f"must be a positive int, got {v!r}")
+            check(_is_int(v) and 1 <= v <= most, f, f"must be an int in 1..{most}, got {v!r}")
         check(self.message_layers >= 2, "message_layers", f"must be >= 2, got {self.message_layers!r}")
-        check(_is_int(self.head_hidden) and self.head_hidden >= 0, "head_hidden",
-              f"must be an int >= 0, got {self.head_hidden!r}")
-        for f in ("k", "mlp_hidden", "gcn_channels"):
-            check(len(getattr(self, f)) > 0, f, "must not be empty")
+        check(_is_int(self.head_hidden) and 0 <= self.head_hidden <= _MAX_WIDTH, "head_hidden",
+              f"must be an int in 0..{_MAX_WIDTH}, got {self.head_hidden!r}")
+        for f, most in (("k", _MAX_K), ("mlp_hidden", _MAX_WIDTH), ("gcn_channels", _MAX_WIDTH)):
+            check(0 < len(getattr(self, f)) <= _MAX_LAYERS, f, f"must hold 1..{_MAX_LAYERS} values")
             for v in getattr(self, f):
-                check(_is_int(v) and v >= 1, f, f"must hold positive ints, got {v!r}")
+                check(_is_int(v) and 1 <= v <= most, f, f"must hold ints in 1..{most}, got {v!r}")
         check(_is_number(self.sample_ratio) and 0.0 < self.sample_ratio <= 1.0, "sample_ratio",
               f"must be in (0, 1], got {self.sample_ratio!r}")
         layers = range(len(self.k))
@@ -143,5 +148,5 @@ class PerceptionModelConfig:
         for f in _BOOLS:
             check(isinstance(getattr(self, f), bool), f, f"must be a bool, got {getattr(self, f)!r}")
         check(self.fps_start in FPS_STARTS, "fps_start", f"must be one of {FPS_STARTS}, got {self.fps_start!r}")
-        check(self.image_size**2 >= self.num_taxels, "image_size",
-              f"{self.image_size} is too small for {self.num_taxels} taxels")
+        check(self.name != "cnn" or self.image_size**2 >= self.num_taxels, "image_size",
+              f"a {self.image_size} x {self.image_size} image cannot hold num_taxels={self.num_taxels} taxels")
