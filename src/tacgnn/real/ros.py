@@ -20,9 +20,10 @@ Topics (the authors' setup, all configurable in `RosConfig`):
 * episodes, ``std_msgs/Int32`` on ``/tacgnn/episode`` (optional): a new value starts an
   episode (the controller resets, as the env does), a negative value ends the run.
 
-Control runs on a fixed 50 Hz clock, started just after a joint state arrives (with a
-hand that publishes at the control rate, each tick then reads a state well under a
-period old). Each tick takes the newest joint state and skin frame; when either is older
+Control ticks follow the joint states, at most 50 Hz (`clock`: with a hand that
+publishes at the control rate each tick reads the state it just measured), or run on a
+fixed 50 Hz clock for faster drivers. Each tick takes the newest joint state and skin
+frame; when either is older
 than ``stale_periods`` control periods it commands nothing, so the hand holds its last
 command, and one log line says so (one more when data is fresh again). Before the first
 command, the first joint state and skin frame are checked (joint names, patch sizes,
@@ -77,8 +78,11 @@ class RosConfig:
     rate_hz: float = 50.0
     stale_periods: float = 2.0
     """A joint state or skin frame older than this many control periods stops the commands."""
-    align_to_joint_states: bool = True
-    """Start the control clock `align_delay_s` after a joint state arrives."""
+    clock: str = "joint_states"
+    """'joint_states': a tick follows each new joint state, at most rate_hz (for a hand that
+    publishes at the control rate, like the simulated one: each tick reads the state just
+    measured); 'timer': a fixed rate_hz clock, started `align_delay_s` after a joint state
+    (for a driver that publishes faster than the control rate)."""
     align_delay_s: float = 0.001
     startup_timeout_s: float = 10.0
     """How long to wait for the first joint state and skin frame."""
@@ -89,6 +93,7 @@ class RosConfig:
         check("/" in self.tactile_type, "ros.tactile_type", f"must look like 'package/Type', got {self.tactile_type!r}")
         check(self.rate_hz > 0 and self.stale_periods > 0, "ros.rate_hz", "rate and staleness must be positive")
         check(0 <= self.align_delay_s < 1 / self.rate_hz, "ros.align_delay_s", "must be in [0, one period)")
+        check(self.clock in ("joint_states", "timer"), "ros.clock", f"must be joint_states or timer, got {self.clock!r}")
         check(self.startup_timeout_s > 0, "ros.startup_timeout_s", "must be positive")
 
     @property
@@ -262,7 +267,8 @@ class LoopStats:
     """Periods skipped because a tick started more than one period late."""
     episodes: int = 0
     latency_s: list[float] = field(default_factory=list)
-    """Per command: from the tick's scheduled time to the command's publication."""
+    """Per command: from the tick's scheduled time (clock 'joint_states': the joint state's arrival) to the
+    command's publication."""
     compute_s: list[float] = field(default_factory=list)
     """Per command: from the tick's start to the command's publication."""
     slow_ticks: list[tuple[int, float, float]] = field(default_factory=list)
@@ -376,6 +382,31 @@ class _Node:
                 self._node.destroy_node()
                 self._ros.shutdown()
 
+    def loop_on(self, latest: Latest, tick: Callable[[float], bool], stats: LoopStats | None = None) -> None:
+        """Call tick(arrival time) after each new message of `latest`, at most rate_hz; when none
+        comes for 1.5 periods, tick anyway (the tick sees stale data and holds). Gaps of more
+        than 1.5 periods between ticks count as overruns in stats."""
+        period = self.cfg.period
+        last = time.monotonic()
+        seen = latest.count
+        while self.ok():
+            deadline = last + 1.5 * period
+            while latest.count == seen and time.monotonic() < deadline:
+                latest.arrived.wait(max(0.0, min(0.005, deadline - time.monotonic())))
+                latest.arrived.clear()
+                self.spin_once()
+            now = time.monotonic()
+            fresh = latest.count != seen
+            seen = latest.count
+            if fresh and now - last < 0.75 * period:
+                continue  # faster than the control rate: wait for the next one
+            gap = now - last
+            if gap > 1.5 * period and stats is not None and stats.commands:
+                stats.overruns += int(round(gap / period)) - 1
+            last = now
+            if tick(latest.stamp if fresh else now) is False:
+                break
+
     def shutdown(self, reason: str) -> None:
         if self.cfg.ros_version == 1:
             self._ros.signal_shutdown(reason)
@@ -402,7 +433,7 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
     bag = _RunRecorder(record, cfg, tactile_cls) if record else None
     stats = LoopStats()
     start = None
-    if cfg.align_to_joint_states:
+    if cfg.clock == "timer":
         tick.joints.arrived.clear()
         if tick.joints.arrived.wait(cfg.startup_timeout_s):
             start = tick.joints.stamp + cfg.align_delay_s
@@ -433,7 +464,10 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
         return True
 
     try:
-        node.loop(step, start, stats)
+        if cfg.clock == "timer":
+            node.loop(step, start, stats)
+        else:
+            node.loop_on(tick.joints, step, stats)
     finally:
         if bag is not None:
             bag.close()
