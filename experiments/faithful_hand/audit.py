@@ -77,21 +77,28 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
                 env.sim.batch.get_data(int(i), data)
                 mujoco.mj_forward(m, data)
                 readings = quiet.readings(data.sensordata[None], data.xpos[None], data.xmat[None])[0]
-                on_patch: dict[int, list[float]] = {}
+                on_patch: dict[int, list[float]] = {}  # ball contact forces per skinned link
+                mixed: set[int] = set()  # patches also pressed by another link
                 for j in range(data.ncon):
                     c = data.contact[j]
                     g = (int(c.geom[0]), int(c.geom[1]))
-                    if (g[0] in ball_geoms) == (g[1] in ball_geoms):
-                        continue  # ball-ball or link-link
-                    pen.append(-min(c.dist, 0.0))
+                    if g[0] in ball_geoms and g[1] in ball_geoms:
+                        continue  # ball on ball
                     f = np.zeros(6)
                     mujoco.mj_contactForce(m, data, j, f)
+                    if g[0] not in ball_geoms and g[1] not in ball_geoms:  # link on link
+                        mixed |= {patch_of_body[b] for b in (int(m.geom_bodyid[g[0]]), int(m.geom_bodyid[g[1]]))
+                                  if b in patch_of_body}
+                        continue
+                    pen.append(-min(c.dist, 0.0))
                     forces.append(f[0])
                     link = g[1] if g[0] in ball_geoms else g[0]
                     k = patch_of_body.get(int(m.geom_bodyid[link]))
                     if k is not None:
                         on_patch.setdefault(k, []).append(f[0])
                 for k, fs in on_patch.items():
+                    if k in mixed:
+                        continue
                     patch_read = float(readings[offsets[k]:offsets[k + 1]].sum())
                     skinned_force += sum(fs)
                     read_force += patch_read
@@ -135,6 +142,8 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
         "normal_force_p99": float(np.percentile(forces, 99)) if len(forces) else 0.0,
         "normal_force_max": float(forces.max()) if len(forces) else 0.0,
         "normal_force_median": float(np.median(forces)) if len(forces) else 0.0,
+        # taxel readings against the hand-ball normal force on skinned links pressed by balls only,
+        # covered or not (contacts on a link's bare edges count against the skin)
         "skin_share_of_skinned_link_force": read_force / skinned_force if skinned_force else None,
         "taxels_per_contact": taxels,
         "success": float(success.mean()),

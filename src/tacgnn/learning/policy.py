@@ -21,6 +21,12 @@ from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
+SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
+"""The blind policy the demo and the real-hand controller run: TacGNN perception in the loop."""
+SHIPPED_TEACHER = ASSETS / "baoding_gt_policy.pt"
+"""The ground-truth teacher it was fine-tuned from (true ball positions)."""
+
 
 def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], BaodingConfig]:
     """The deterministic policy (mean action) of a checkpoint, and the env config it was trained on.

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _policy(args) -> str:
-    from tacgnn.real.controller import SHIPPED_POLICY
+    from tacgnn.learning.policy import SHIPPED_POLICY
 
     return str(args.policy or SHIPPED_POLICY)
 

@@ -31,10 +31,10 @@ import torch
 from tacgnn.config import check
 from tacgnn.envs import observation
 from tacgnn.hand.allegro import JOINT_NAMES
+from tacgnn.learning.policy import SHIPPED_POLICY
 from tacgnn.real.kinematics import TaxelKinematics
 
 NUM_JOINTS = len(JOINT_NAMES)
-SHIPPED_POLICY = Path(__file__).resolve().parent.parent / "assets" / "baoding_policy.pt"
 BLIND_MODES = ("perceived", "no_perception")
 log = logging.getLogger("tacgnn.real")
 

@@ -1,0 +1,83 @@
+"""Table III: success of the ground-truth teacher and of the blind policies, beside the paper's.
+
+    .venv/bin/python experiments/table3_report.py [--iterations 400]
+
+Reads results/table3/*.json (written by `experiments/baoding_pipeline.sh` through `tacgnn
+evaluate`) and prints one markdown row per run: success on Simple / Middle / Hard (with
+Wilson 95 % intervals), the 1 s hold, mean steps to success, beside the paper's figures.
+Runs of several seeds of one model are pooled, with the seed-bootstrap interval of the
+difference to TacGNN when both have more than one seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from tacgnn.learning.evaluate import seed_bootstrap_difference
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = {  # model: success % Simple / Middle / Hard, mean steps
+    "mlp": ((52.44, 45.57, 41.78), (76, 77, 79)), "cnn": ((42.71, 63.75, 50.88), (147, 133, 119)),
+    "gcn": ((70.62, 64.51, 55.11), (100, 87, 103)), "tacgnn": ((94.71, 88.57, 79.78), (82, 86, 94)),
+}
+TASKS = ("simple", "middle", "hard", "hold")
+
+
+def load(folder: Path, iterations: int | None) -> dict[str, list[dict]]:
+    """{run label: [per-seed {task: result}]} of the result files of `folder`."""
+    runs: dict[str, list[dict]] = defaultdict(list)
+    for path in sorted(folder.glob("*.json")):
+        m = re.fullmatch(r"(.+?)(?:_s(\d+))?_model_(\d+)", path.stem)
+        if not m or (iterations and m.group(1).startswith("blind") and int(m.group(3)) != iterations):
+            continue
+        results = json.loads(path.read_text())
+        label = f"{m.group(1)} ({int(m.group(3))} it.)"
+        runs[label].append({r["task"]: r for r in (results if isinstance(results, list) else [results])})
+    return runs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--iterations", type=int, default=None, help="only blind runs evaluated at this many iterations")
+    ap.add_argument("--folder", type=Path, default=ROOT / "results" / "table3")
+    args = ap.parse_args()
+    runs = load(args.folder, args.iterations)
+    print("| policy | seeds | Simple | Middle | Hard | 1 s hold | steps (S/M/H) | paper (S/M/H) | paper steps |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for label, seeds in runs.items():
+        cells = []
+        for task in TASKS:
+            done = [s[task] for s in seeds if task in s]
+            if not done:
+                cells.append("-")
+                continue
+            wins = sum(round(r["success_rate"] * r["episodes"]) for r in done)
+            n = sum(r["episodes"] for r in done)
+            lo, hi = done[0]["ci95"] if len(done) == 1 else (float("nan"), float("nan"))
+            cells.append(f"{100 * wins / n:.1f}" + (f" ({100 * lo:.1f}-{100 * hi:.1f})" if len(done) == 1 else ""))
+        steps = "/".join(f"{np.nanmean([s[t]['mean_steps_to_success'] for s in seeds if t in s]):.0f}"
+                         for t in TASKS[:3])
+        model = next((k for k in PAPER if f"_{k}" in label), None)
+        paper = PAPER.get(model) if model else None
+        print(f"| {label} | {len(seeds)} | " + " | ".join(cells) + f" | {steps} | "
+              + ("/".join(f"{v:.2f}" for v in paper[0]) + " | " + "/".join(map(str, paper[1])) if paper else "- | -")
+              + " |")
+    tac = [s for label, seeds in runs.items() if "_tacgnn" in label for s in seeds]
+    for label, seeds in runs.items():
+        if "_tacgnn" in label or "blind" not in label or len(seeds) < 2 or len(tac) < 2:
+            continue
+        for task in TASKS[:3]:
+            diff = seed_bootstrap_difference(
+                [(round(s[task]["success_rate"] * s[task]["episodes"]), s[task]["episodes"]) for s in tac],
+                [(round(s[task]["success_rate"] * s[task]["episodes"]), s[task]["episodes"]) for s in seeds])
+            print(f"TacGNN minus {label}, {task}: {diff}")
+
+
+if __name__ == "__main__":
+    main()
