@@ -54,8 +54,13 @@ class GraspConfig:
     its yaw barely shows in the skin (experiments/perception_accuracy/NOTES.md)."""
 
     def __post_init__(self) -> None:
-        check(self.num_envs >= 1, "num_envs", "must be >= 1")
-        check(min(self.settle_steps, self.close_steps, self.hold_steps) >= 1, "close_steps", "phases need >= 1 step")
+        check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
+        substeps = self.control_dt / self.sim.timestep
+        check(0 < self.control_dt <= 1 and abs(substeps - round(substeps)) < 1e-6, "control_dt",
+              f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
+        for key in ("settle_steps", "close_steps", "hold_steps"):
+            check(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")
+        check(self.position_noise >= 0, "position_noise", f"must be >= 0, got {self.position_noise}")
         check(0 <= self.closure[0] <= self.closure[1] <= 1, "closure", "needs 0 <= low <= high <= 1")
         check(self.can_face in ("broad", "narrow"), "can_face", f"must be 'broad' or 'narrow', got {self.can_face!r}")
 

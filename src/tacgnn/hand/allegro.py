@@ -109,6 +109,7 @@ class HandConfig:
             if isinstance(getattr(self, name), (tuple, list)):
                 object.__setattr__(self, name, _per_joint(getattr(self, name)))
         check(self.armature >= 0, "hand.armature", f"must be >= 0, got {self.armature}")
+        check(-90 <= self.palm_tilt_deg <= 90, "hand.palm_tilt_deg", f"must be in [-90, 90], got {self.palm_tilt_deg}")
         check(self.friction > 0, "hand.friction", f"must be positive, got {self.friction}")
         check(self.link_density > 0, "hand.link_density", f"must be positive, got {self.link_density}")
 

@@ -97,6 +97,8 @@ class PPOConfig:
         check(self.num_envs <= MAX_ENVS, "num_envs", f"must be <= {MAX_ENVS}, got {self.num_envs}")
         check(self.torch_threads <= MAX_THREADS, "torch_threads", f"must be <= {MAX_THREADS}, got {self.torch_threads}")
         check(self.max_iterations >= 0, "max_iterations", "must be >= 0")
+        check(self.num_envs * self.num_steps_per_env <= 1 << 22, "num_steps_per_env",  # rollout storage ~2.5 GB
+              f"num_envs x num_steps_per_env must be <= {1 << 22}, got {self.num_envs * self.num_steps_per_env}")
         check(self.num_envs * self.num_steps_per_env >= self.num_mini_batches, "num_mini_batches",
               "more mini-batches than samples per iteration")
         check(self.learning_rate > 0, "learning_rate", "must be positive")
@@ -111,7 +113,8 @@ class PPOConfig:
         check(self.entropy_coef >= 0, "entropy_coef", "must be >= 0")
         for key in ("actor_hidden_dims", "critic_hidden_dims"):
             dims = getattr(self, key)
-            check(len(dims) >= 1 and all(d >= 1 for d in dims), key, f"needs positive widths, got {list(dims)}")
+            check(1 <= len(dims) <= 16 and all(1 <= d <= 8192 for d in dims), key,
+                  f"needs 1..16 layers of widths in 1..8192, got {list(dims)}")
 
     def rsl_rl_cfg(self) -> dict[str, Any]:
         """The train_cfg dict of rsl_rl 5.5.1's OnPolicyRunner (algorithm: `GuardedPPO`)."""

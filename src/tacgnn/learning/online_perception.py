@@ -65,7 +65,8 @@ class OnlinePerceptionConfig:
         check(1 <= self.threads <= 1024, "perception.threads", f"must be in [1, 1024], got {self.threads}")
         check(self.lr > 0, "perception.lr", f"must be positive, got {self.lr}")
         check(self.weight_decay >= 0, "perception.weight_decay", f"must be >= 0, got {self.weight_decay}")
-        check(self.buffer_size <= 10_000_000, "perception.buffer_size", f"must be <= 10,000,000, got {self.buffer_size}")
+        check(self.buffer_size <= 1_000_000, "perception.buffer_size",  # 16 bytes per taxel and frame: 10 GB
+              f"must be <= 1,000,000, got {self.buffer_size}")
 
 
 class OnlinePerception:

@@ -49,7 +49,7 @@ class SimConfig:
         check(self.integrator in ("euler", "implicitfast", "implicit", "rk4"), "sim.integrator",
               f"unknown integrator {self.integrator!r}")
         check(1 <= self.contacts_per_patch <= 16, "sim.contacts_per_patch", "must be in 1..16")
-        check(self.nthread >= 0, "sim.nthread", "must be >= 0")
+        check(0 <= self.nthread <= 1024, "sim.nthread", f"must be in 0..1024, got {self.nthread}")
         check(self.backend in ("c", "warp"), "sim.backend", f"must be 'c' or 'warp', got {self.backend!r}")
         check(self.backend != "warp" or importlib.util.find_spec("mujoco_warp") is not None, "sim.backend",
               "'warp' needs the mujoco-warp package (pip install mujoco-warp==4.0.0)")
@@ -57,8 +57,8 @@ class SimConfig:
         check(self.contact_timeconst >= 2 * self.timestep - 1e-12, "sim.contact_timeconst",
               f"must be >= 2 x sim.timestep ({2 * self.timestep}) or the contacts are unstable, "
               f"got {self.contact_timeconst}")
-        check(0 < self.contact_dampratio <= 10, "sim.contact_dampratio",
-              f"must be in (0, 10], got {self.contact_dampratio}")
+        check(0.3 <= self.contact_dampratio <= 10, "sim.contact_dampratio",  # below 0.3 grasps diverge
+              f"must be in [0.3, 10], got {self.contact_dampratio}")
         d0, d1, width = self.contact_solimp
         check(0 < d0 <= d1 < 1 and 0 < width <= 0.1, "sim.contact_solimp",
               f"needs 0 < d0 <= d_width < 1 and 0 < width <= 0.1 m, got {self.contact_solimp}")
