@@ -189,18 +189,20 @@ class BlindController:
         """The safety rules on a target: step limit, rate limit, joint ranges (in that order)."""
         cfg = self.config
         out = target.copy()
-        if cfg.max_step_rad > 0:
-            near = np.clip(out, joint_pos - cfg.max_step_rad, joint_pos + cfg.max_step_rad)
-            self.safety.note("max_step_rad", bool((near != out).any()),
-                             f"max_step_rad: targets kept within {cfg.max_step_rad} rad of the measured angles")
-            out = near
+        near = np.clip(out, joint_pos - cfg.max_step_rad, joint_pos + cfg.max_step_rad) if cfg.max_step_rad > 0 \
+            else out
+        self.safety.note("max_step_rad", bool((near != out).any()),
+                         f"max_step_rad: targets kept within {cfg.max_step_rad} rad of the measured angles")
+        out = near
         if cfg.max_target_rate > 0:
             ref = joint_pos if self.last_target is None else self.last_target
             reach = cfg.max_target_rate * self.control_dt
             slow = np.clip(out, ref - reach, ref + reach)
-            self.safety.note("max_target_rate", bool((slow != out).any()),
-                             f"max_target_rate: target changes limited to {cfg.max_target_rate} rad/s")
-            out = slow
+        else:
+            slow = out
+        self.safety.note("max_target_rate", bool((slow != out).any()),
+                         f"max_target_rate: target changes limited to {cfg.max_target_rate} rad/s")
+        out = slow
         inside = np.clip(out, self.joint_low, self.joint_high)
         self.safety.note("joint_ranges", bool((np.abs(inside - out) > 1e-9).any()),  # not float round-off
                          "joint_ranges: targets clipped to the policy's joint ranges")
