@@ -91,8 +91,10 @@ class RosConfig:
         check(self.ros_version in (1, 2), "ros.ros_version", f"must be 1 or 2, got {self.ros_version}")
         check(len(self.joint_names) == NUM_JOINTS, "ros.joint_names", f"needs {NUM_JOINTS} names")
         check("/" in self.tactile_type, "ros.tactile_type", f"must look like 'package/Type', got {self.tactile_type!r}")
-        check(self.rate_hz > 0 and self.stale_periods > 0, "ros.rate_hz", "rate and staleness must be positive")
-        check(0 <= self.align_delay_s < 1 / self.rate_hz, "ros.align_delay_s", "must be in [0, one period)")
+        check(self.rate_hz > 0, "ros.rate_hz", f"must be positive, got {self.rate_hz}")
+        check(self.stale_periods > 0, "ros.stale_periods", f"must be positive, got {self.stale_periods}")
+        check(0 <= self.align_delay_s < 1 / self.rate_hz, "ros.align_delay_s",
+              f"must be in [0, one period = 1 / rate_hz = {1 / self.rate_hz:g} s), got {self.align_delay_s}")
         check(self.clock in ("joint_states", "timer"), "ros.clock", f"must be joint_states or timer, got {self.clock!r}")
         check(self.startup_timeout_s > 0, "ros.startup_timeout_s", "must be positive")
 
