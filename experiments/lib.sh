@@ -5,14 +5,6 @@
 resume() { compgen -G "$1/model_*.pt" >/dev/null && echo --resume || true; }
 # last RUN_DIR ITERATIONS: the checkpoint written after that many iterations
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
-# results_label RUN_DIR: the run's name in results/ files; the teacher runs/gt_hard_sK is named
-# gt_${TEACHER_TAG}_hard_sK when TEACHER_TAG names a retrained one (experiments/table3.sh), so the
-# evaluations of two teachers never share a file
-results_label() {
-  local name; name=$(basename "$1")
-  [ -n "${TEACHER_TAG:-}" ] && name=${name/#gt_hard_/gt_${TEACHER_TAG}_hard_}
-  echo "$name"
-}
 # offline_perception RUN MODEL SEED DATASET [SETTING...]: train a Baoding perception for 10 epochs
 # (skipped when RUN finished them, resumed when RUN holds a checkpoint); SETTINGs go to --set
 offline_perception() {

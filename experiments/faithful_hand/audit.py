@@ -28,7 +28,7 @@ import numpy as np
 
 from tacgnn.config import override, parse_overrides
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
-from tacgnn.learning.policy import load_policy
+from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.sim.tactile import TactileModel
 
 
@@ -42,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     policy, env_cfg = load_policy(args.policy)
     cfg = override(env_cfg, parse_overrides(args.set))
-    stats = audit(policy, cfg, args.episodes)
+    perception = load_perception(args.policy) if cfg.obs_mode == "perceived" else None
+    stats = audit(policy, cfg, args.episodes, perception)
     stats["spawn_overlaps"] = count_spawn_overlaps(cfg, args.resets)
     stats["policy"] = args.policy
     text = json.dumps(stats, indent=1)
@@ -53,9 +54,9 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
+def audit(policy, cfg: BaodingConfig, episodes: int, perception=None) -> dict:
     cfg = replace(cfg, num_envs=episodes)
-    env = BaodingEnv(cfg)
+    env = BaodingEnv(cfg, perception=perception)
     m = env.model
     data = mujoco.MjData(m)
     ball_geoms = set(env.ball_geom.tolist())
@@ -153,7 +154,7 @@ def audit(policy, cfg: BaodingConfig, episodes: int) -> dict:
 
 
 def count_spawn_overlaps(cfg: BaodingConfig, resets: int) -> dict:
-    env = BaodingEnv(replace(cfg, num_envs=min(resets, 1000), spawn_clearance=cfg.spawn_clearance))
+    env = BaodingEnv(replace(cfg, num_envs=min(resets, 1000), obs_mode="groundtruth"))
     m, d = env.model, mujoco.MjData(env.model)
     balls = set(env.ball_geom.tolist())
     overlaps, worst, done = 0, 0.0, 0
