@@ -37,6 +37,7 @@ import numpy as np
 import yaml
 
 from tacgnn.config import ConfigError, load_yaml, override, parse_overrides, to_dict
+from tacgnn.learning.policy import SHIPPED_POLICY
 
 
 def _config(cls, args, **given):
@@ -64,7 +65,6 @@ def cmd_config(args) -> int:
     return 0
 
 
-SHIPPED_POLICY = Path(__file__).parent / "assets" / "baoding_policy.pt"
 
 
 def cmd_demo(args) -> int:
@@ -177,7 +177,8 @@ def cmd_make_dataset(args) -> int:
         env = override(_baoding_config(args), {"obs_mode": "tactile"})
         cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size,
                                              seed=args.seed, env=env, policy_checkpoint=args.policy or "",
-                                             settle_steps=args.settle_steps)
+                                             settle_steps=args.settle_steps, keep_every=args.keep_every,
+                                             num_envs=args.envs or baoding_data.BaodingDataConfig.num_envs)
         policy = None
         if args.policy:
             from tacgnn.learning.policy import load_policy
@@ -199,6 +200,10 @@ def cmd_train_perception(args) -> int:
     from tacgnn.perception.train_config import PerceptionTrainConfig
     from tacgnn.perception.training import train
 
+    if args.temporal or args.by_episode:
+        return _train_sequence_perception(args)
+    if args.window is not None or args.burn_in is not None:
+        raise ConfigError("--window and --burn-in go with --temporal")
     cfg = PerceptionTrainConfig.for_task(args.task, args.model, epochs=args.epochs, seed=args.seed,
                                          max_samples=args.max_samples,
                                          model_kw={"channels": args.channels} if args.channels else {})
@@ -209,10 +214,45 @@ def cmd_train_perception(args) -> int:
     return 0
 
 
+def _train_sequence_perception(args) -> int:
+    """train-perception --temporal / --by-episode: windows of episodes (tacgnn.perception.sequence_training)."""
+    from tacgnn.perception.models.temporal import TemporalModelConfig
+    from tacgnn.perception.sequence_train_config import SequenceTrainConfig
+    from tacgnn.perception.sequence_training import train_sequence
+    from tacgnn.perception.train_config import default_model_config
+
+    if args.task != "baoding":
+        raise ConfigError(f"--temporal/--by-episode train on Baoding sequences (--task baoding), not {args.task!r}")
+    if args.temporal and args.by_episode:
+        raise ConfigError("--temporal and --by-episode exclude each other (--by-episode is the single-frame model)")
+    if args.by_episode and (args.window is not None or args.burn_in is not None):
+        raise ConfigError("--window and --burn-in go with --temporal")
+    frame = default_model_config(name=args.model, **({"channels": args.channels} if args.channels else {}))
+    given = {"window": args.window, "burn_in": args.burn_in}
+    cfg = SequenceTrainConfig(model=TemporalModelConfig(frame=frame), temporal=args.temporal, epochs=args.epochs,
+                              seed=args.seed, max_frames=args.max_samples,
+                              **({} if args.temporal else {"batch_size": 32}),
+                              **{k: v for k, v in given.items() if v is not None})
+    if args.set:
+        cfg = override(cfg, parse_overrides(args.set))
+    final = train_sequence(cfg, args.dataset, args.run, resume=args.resume)
+    print("final:", {k: round(v, 4) for k, v in final.items() if isinstance(v, float)})
+    return 0
+
+
 def cmd_eval_perception(args) -> int:
     from tacgnn.datasets.store import read_manifest
     from tacgnn.perception.evaluation import evaluate, patch_loss, patch_taxels
+    from tacgnn.perception.sequence_checkpoint import is_sequence_checkpoint
 
+    if is_sequence_checkpoint(args.checkpoint):  # temporal or --by-episode: whole test episodes
+        from tacgnn.perception.sequence_evaluation import evaluate_sequence
+
+        if args.lose_patch or args.dead != [0.0]:
+            raise ConfigError(f"{args.checkpoint}: --dead and --lose-patch take single-frame checkpoints")
+        metrics = evaluate_sequence(args.checkpoint, args.dataset, whole=args.whole)
+        print(", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
+        return 0
     for patch in args.lose_patch:  # an unknown patch name fails before any evaluation
         patch_taxels(read_manifest(args.dataset)["metadata"]["skin"], patch)
     for dead in args.dead:
@@ -405,6 +445,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", help="baoding: a ground-truth PPO checkpoint drives the balls")
     p.add_argument("--settle-steps", type=_count(0), default=5,
                    help="baoding: skip this many first steps of each episode (0 keeps the dropping balls)")
+    p.add_argument("--keep-every", type=_count(1), default=2,
+                   help="baoding: record every k-th step of each env; 1 keeps every frame (sequence models)")
+    p.add_argument("--envs", type=_count(1), help="baoding: envs stepped together (default 64; fewer give "
+                   "longer episodes per shard)")
 
     p = sub.add_parser("train-perception", help="train a perception model on a dataset")
     p.add_argument("--task", choices=["baoding", "cube", "cylinder", "meat_can"], default="baoding")
@@ -417,6 +461,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true")
     p.add_argument("--set", nargs="*", metavar="KEY=VALUE", help="override training config keys")
+    p.add_argument("--temporal", action="store_true",
+                   help="baoding: a GRU over --model's per-frame features, trained on windows of episodes "
+                        "(a dataset made with --keep-every 1; split by episode)")
+    p.add_argument("--by-episode", action="store_true",
+                   help="baoding: the single-frame --model on the same episode split and budget as --temporal")
+    p.add_argument("--window", type=_count(1), help="--temporal: frames per window with gradient (default 16)")
+    p.add_argument("--burn-in", type=_count(0), help="--temporal: frames before a window that warm the state "
+                   "without gradient (default 16)")
     p.set_defaults(fn=cmd_train_perception)
 
     for name, fn, text in (("train-policy", cmd_train_policy, "train PPO on the Baoding env (see --help)"),

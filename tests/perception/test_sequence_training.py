@@ -1,0 +1,92 @@
+"""Training on sequences: windows, exact resume, the CLI, and checkpoints of one kind refused as the other."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from tacgnn.perception.checkpoint import CheckpointError, load_model
+from tacgnn.perception.sequence_checkpoint import load_sequence_model
+from tacgnn.perception.sequence_evaluation import error_by_steps_since_touch, evaluate_sequence
+from tacgnn.perception.sequence_train_config import SequenceTrainConfig
+from tacgnn.perception.sequence_training import train_sequence
+from tests.perception.models.test_temporal import small
+from tests.perception.sequence_helpers import episodes, write_dataset
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    arrays = episodes(12, 20, seed=5)  # 240 frames
+    return write_dataset(tmp_path_factory.mktemp("seq") / "ds", arrays)
+
+
+def config(**kw):
+    return SequenceTrainConfig(**{"model": small("mlp"), "window": 6, "burn_in": 4, "epochs": 2, "batch_size": 4,
+                                  **kw})
+
+
+def quiet(_):
+    pass
+
+
+def test_a_run_resumed_with_more_epochs_equals_an_uninterrupted_one(tmp_path, dataset):
+    full = train_sequence(config(), dataset, tmp_path / "full", log=quiet)
+    train_sequence(config(epochs=1), dataset, tmp_path / "part", log=quiet)
+    resumed = train_sequence(config(), dataset, tmp_path / "part", resume=True, log=quiet)
+    a = torch.load(tmp_path / "full" / "checkpoint.pt", weights_only=True)["model"]
+    b = torch.load(tmp_path / "part" / "checkpoint.pt", weights_only=True)["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert {k: v for k, v in full.items() if k != "seconds"} == {k: v for k, v in resumed.items() if k != "seconds"}
+    for key in ("test/position_rmse_cm", "test/touched_rmse_cm", "test/untouched_rmse_cm"):
+        assert 0 < full[key] < 10
+    metrics = evaluate_sequence(tmp_path / "full" / "checkpoint.pt", dataset)
+    assert metrics["position_rmse_cm"] == pytest.approx(full["test/position_rmse_cm"])
+    curve = error_by_steps_since_touch(tmp_path / "full" / "checkpoint.pt", dataset, [0, 1, 3])
+    assert curve["count"][0] > 0 and curve["count"][1] > 0 and len(curve["rmse_cm"]) == 3
+
+
+def test_kinds_of_checkpoint_are_not_mixed(tmp_path, dataset):
+    from tacgnn.perception.train_config import PerceptionTrainConfig
+    from tacgnn.perception.training import train
+
+    train_sequence(config(epochs=1), dataset, tmp_path / "temporal", log=quiet)
+    train_sequence(config(epochs=1, temporal=False), dataset, tmp_path / "frame", log=quiet)
+    single = PerceptionTrainConfig.for_task("baoding", "mlp", epochs=1, model_kw={"num_taxels": 96})
+    train(single, dataset, tmp_path / "single", log=quiet)
+
+    with pytest.raises(CheckpointError, match="temporal perception checkpoint.*needs a single-frame one"):
+        load_model(tmp_path / "temporal" / "checkpoint.pt")
+    with pytest.raises(CheckpointError, match="a single-frame perception checkpoint.*needs a temporal one"):
+        load_sequence_model(tmp_path / "single" / "checkpoint.pt")
+    with pytest.raises(CheckpointError, match="a single-frame model.*needs a temporal one"):
+        load_sequence_model(tmp_path / "frame" / "checkpoint.pt", temporal=True)
+    with pytest.raises(CheckpointError, match="a temporal model.*needs a single-frame one"):
+        load_sequence_model(tmp_path / "temporal" / "checkpoint.pt", temporal=False)
+    model, cfg, _ = load_sequence_model(tmp_path / "temporal" / "checkpoint.pt", temporal=True)
+    assert cfg.temporal and model.cfg == cfg.model
+
+
+def test_cli_trains_evaluates_and_names_bad_windows(tmp_path, dataset, capsys):
+    from tacgnn.cli import main
+
+    frame = ["--set", "model.frame.num_taxels=96", "model.feature=16", "model.hidden=16", "window=4", "burn_in=2",
+             "batch_size=4"]
+    assert main(["train-perception", "--temporal", "--model", "mlp", "--dataset", str(dataset), "--run",
+                 str(tmp_path / "t"), "--epochs", "1", *frame]) == 0
+    assert main(["eval-perception", "--checkpoint", str(tmp_path / "t" / "checkpoint.pt"), "--dataset",
+                 str(dataset)]) == 0
+    out = capsys.readouterr().out
+    assert "touched_rmse_cm" in out and "untouched_rmse_cm" in out
+    code = main(["train-perception", "--temporal", "--model", "mlp", "--dataset", str(dataset), "--run",
+                 str(tmp_path / "long"), "--window", "21", "--set", "model.frame.num_taxels=96"])
+    err = capsys.readouterr().err
+    assert code == 2 and "window of 21 frames is longer than every episode" in err and len(err.splitlines()) == 1
+    code = main(["train-perception", "--temporal", "--model", "gcn", "--dataset", str(dataset), "--run",
+                 str(tmp_path / "gcn")])
+    assert code == 2 and "model.frame.name" in capsys.readouterr().err
+
+
+def test_single_frame_on_the_same_split_reads_frames_one_by_one(tmp_path, dataset):
+    cfg = dataclasses.replace(config(epochs=1), temporal=False, batch_size=16)
+    final = train_sequence(cfg, dataset, tmp_path / "f", log=quiet)
+    assert 0 < final["test/position_rmse_cm"] < 10
