@@ -21,9 +21,9 @@ so windows of consecutive frames can be drawn (`tacgnn.perception.sequences`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

@@ -23,8 +23,9 @@ input and its label match exactly.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 import gymnasium as gym
 import mujoco

@@ -167,7 +167,7 @@ class SkinLayout:
         """(num_taxels, 2) (row, col) of each taxel in its patch."""
         return np.concatenate([p.grid_cells() for p in self.patches])
 
-    def with_pitch_scale(self, scale: float) -> "SkinLayout":
+    def with_pitch_scale(self, scale: float) -> SkinLayout:
         """The same patches with taxels `scale` times as far apart (another sensor design)."""
         return replace(self, patches=tuple(replace(p, pitch=p.pitch * scale) for p in self.patches))
 

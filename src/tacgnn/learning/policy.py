@@ -6,9 +6,9 @@ evaluation, the demo, dataset recording and the real-hand controller all act thr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch

@@ -18,7 +18,8 @@ already the first one of the next episode, which is what rsl_rl wants.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -27,6 +28,7 @@ from tensordict import TensorDict
 
 from tacgnn.config import to_dict
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+
 
 class RslBaodingEnv(VecEnv):
     """`BaodingEnv` as an rsl_rl `VecEnv` on the CPU.

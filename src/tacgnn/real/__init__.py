@@ -7,8 +7,14 @@ skin calibration, running the controller).
 
 from tacgnn.real.controller import BlindController, BlindControllerConfig
 from tacgnn.real.kinematics import TaxelKinematics
-from tacgnn.real.skin import (CalibrationError, SkinCalibration, SkinProcessor, calibrate, load_raw_frames,
-                              patch_gain_from_load)
+from tacgnn.real.skin import (
+    CalibrationError,
+    SkinCalibration,
+    SkinProcessor,
+    calibrate,
+    load_raw_frames,
+    patch_gain_from_load,
+)
 
 __all__ = ["BlindController", "BlindControllerConfig", "TaxelKinematics", "CalibrationError", "SkinCalibration",
            "SkinProcessor", "calibrate", "load_raw_frames", "patch_gain_from_load"]

@@ -23,9 +23,9 @@ as a mapping patch name -> array or a sequence in the layout's patch order.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -93,7 +93,7 @@ class SkinCalibration:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "SkinCalibration":
+    def load(cls, path: str | Path) -> SkinCalibration:
         path = Path(path)
         if not path.is_file():
             raise CalibrationError(f"skin calibration {path}: file not found")

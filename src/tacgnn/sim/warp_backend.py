@@ -66,8 +66,8 @@ class WarpUnavailable(ConfigError):
 def import_warp():
     """(warp, mujoco_warp), or WarpUnavailable naming what to install."""
     try:
-        import warp as wp
         import mujoco_warp as mjw
+        import warp as wp
     except ImportError as err:
         raise WarpUnavailable(f"sim.backend: warp needs the mujoco-warp package ({err}); "
                               "install it with: pip install mujoco-warp==4.0.0") from err

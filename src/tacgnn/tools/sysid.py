@@ -62,7 +62,7 @@ class SysIdGrid:
         return np.stack([k.ravel(), d.ravel()], axis=1).astype(np.float64)
 
     @staticmethod
-    def linspace(stiffness: tuple[float, float], damping: tuple[float, float], n: int) -> "SysIdGrid":
+    def linspace(stiffness: tuple[float, float], damping: tuple[float, float], n: int) -> SysIdGrid:
         """A finer grid: `n` evenly spaced values over each (low, high) range."""
         return SysIdGrid(tuple(np.linspace(*stiffness, n).round(6).tolist()),
                          tuple(np.linspace(*damping, n).round(6).tolist()))
