@@ -27,6 +27,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 # Idle OpenMP workers of torch's libgomp spin by default. With two jobs on this 2-core
 # machine that made a 1-thread perception epoch 3-4x slower (15.7-17.1 s against
@@ -172,7 +173,9 @@ def cmd_make_dataset(args) -> int:
     from tacgnn.datasets import baoding_data, grasp_data
     from tacgnn.envs.grasp import GraspConfig
 
-    progress = (lambda it: tqdm(it, desc=f"shards of {args.shard_size}", unit="shard"))
+    def progress(it):
+        return tqdm(it, desc=f"shards of {args.shard_size}", unit="shard")
+
     if args.kind == "baoding":
         env = override(_baoding_config(args), {"obs_mode": "tactile"})
         cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size,
@@ -189,9 +192,9 @@ def cmd_make_dataset(args) -> int:
                                   "a 'groundtruth' one (it reads the true ball positions)")
         baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
     else:
-        cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
-                                         grasp=_config(GraspConfig, args, object=args.object))
-        grasp_data.generate(cfg, args.out, progress=progress)
+        grasp_cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
+                                               grasp=_config(GraspConfig, args, object=args.object))
+        grasp_data.generate(grasp_cfg, args.out, progress=progress)
     print(f"dataset complete: {args.out} ({args.samples} samples)")
     return 0
 
@@ -229,9 +232,9 @@ def _train_sequence_perception(args) -> int:
         raise ConfigError("--window and --burn-in go with --temporal")
     frame = default_model_config(name=args.model, **({"channels": args.channels} if args.channels else {}))
     given = {"window": args.window, "burn_in": args.burn_in}
+    batch: dict[str, Any] = {} if args.temporal else {"batch_size": 32}
     cfg = SequenceTrainConfig(model=TemporalModelConfig(frame=frame), temporal=args.temporal, epochs=args.epochs,
-                              seed=args.seed, max_frames=args.max_samples,
-                              **({} if args.temporal else {"batch_size": 32}),
+                              seed=args.seed, max_frames=args.max_samples, **batch,
                               **{k: v for k, v in given.items() if v is not None})
     if args.set:
         cfg = override(cfg, parse_overrides(args.set))
@@ -342,8 +345,7 @@ def cmd_sysid(args) -> int:
 
 def cmd_calibrate_skin(args) -> int:
     """Skin calibration from rest frames; report dead and never-activated taxels."""
-    from tacgnn.real.skin import (CalibrationError, SkinProcessor, calibrate, load_raw_frames,
-                                  patch_gain_from_load)
+    from tacgnn.real.skin import CalibrationError, SkinProcessor, calibrate, load_raw_frames, patch_gain_from_load
 
     rest = load_raw_frames(args.rest)
     calib = calibrate(rest, sigmas=args.sigmas, min_threshold=args.min_threshold, gain=args.gain)

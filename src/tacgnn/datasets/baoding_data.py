@@ -102,7 +102,8 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
     obs, _ = env.reset(seed=seed)
     if controller is None:
         if cfg.policy_checkpoint and policy is None:
-            raise ConfigError(f"policy_checkpoint {cfg.policy_checkpoint}: the caller must load it and pass it as `policy`")
+            raise ConfigError(f"policy_checkpoint {cfg.policy_checkpoint}: "
+                              "the caller must load it and pass it as `policy`")
         controller = policy_controller(policy, cfg.action_noise) if policy is not None else \
             (lambda e, s: FingerWave(e.last_action[0], cfg.num_envs, seed=s))
     act = controller(env, seed)

@@ -22,7 +22,7 @@ import io
 import json
 import logging
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -188,11 +188,11 @@ class ShardedWriter:
         atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
 
     def generate_missing(self, make_shard: Callable[[int], dict[str, np.ndarray]],
-                         progress: Callable[[Iterator[int]], Iterator[int]] | None = None) -> int:
+                         progress: Callable[[Iterable[int]], Iterable[int]] | None = None) -> int:
         """Generate and write every missing shard and regenerate every bad one (see `bad`);
         returns how many were written."""
         bad = self.bad()
-        for index, problem in bad.items():
+        for problem in bad.values():
             log.warning("%s; regenerating it", problem)
         todo = sorted(set(self.missing()) | set(bad))
         for index in (progress(todo) if progress else todo):

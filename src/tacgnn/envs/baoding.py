@@ -50,7 +50,8 @@ ABLATION_NOISE = {"noise_2": 0.002, "noise_4": 0.005, "noise_10": 0.010}
 BAODING_RANGES = FINGER_RANGES * 3 + THUMB_BAODING_RANGES
 BALLS = ("ball_0", "ball_1")
 BALL_CONTACTS = 4  # strongest contacts of each ball that its contact sensor reports
-_FOUND_AND_FORCE = (1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND)) | (1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE))
+_FOUND_AND_FORCE = ((1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND))
+                    | (1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)))
 _STRONGEST_FIRST = 2  # the contact sensor's 'maxforce' reduction
 SPAWN_TRIES = 20
 

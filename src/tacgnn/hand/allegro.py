@@ -99,13 +99,15 @@ class HandConfig:
     """Density of the finger links (kg/m^3)."""
 
     def __post_init__(self) -> None:
-        check(len(self.joint_ranges) == 16, "hand.joint_ranges", f"needs 16 (low, high) pairs, got {len(self.joint_ranges)}")
+        check(len(self.joint_ranges) == 16, "hand.joint_ranges",
+              f"needs 16 (low, high) pairs, got {len(self.joint_ranges)}")
         for name, (lo, hi) in zip(JOINT_NAMES, self.joint_ranges):
             check(lo < hi, "hand.joint_ranges", f"joint {name} has low {lo} >= high {hi}")
         _check_per_joint(self.stiffness, "hand.stiffness", lambda v: v > 0, "> 0")
         _check_per_joint(self.damping, "hand.damping", lambda v: v >= 0, ">= 0")
         _check_per_joint(self.torque_limit, "hand.torque_limit", lambda v: v > 0, "> 0")
-        for name in ("stiffness", "damping", "torque_limit"):  # per-joint values as a tuple of floats (hashable, comparable)
+        # per-joint values as a tuple of floats (hashable, comparable)
+        for name in ("stiffness", "damping", "torque_limit"):
             if isinstance(getattr(self, name), (tuple, list)):
                 object.__setattr__(self, name, _per_joint(getattr(self, name)))
         check(self.armature >= 0, "hand.armature", f"must be >= 0, got {self.armature}")

@@ -155,8 +155,9 @@ def check_policy_fits(checkpoint: dict[str, Any], env_cfg: BaodingConfig, path: 
     """Raise CheckpointError unless the policy in `checkpoint` can act on what an env of `env_cfg` observes.
 
     For acting, where other physics, tasks or skin noise are fine: the observation mode must
-    match, and a perceiving policy needs a skin of as many taxels as its perception reads. Compared on the configs, before any tensor is built, so a mismatch is named
-    rather than failing as a tensor size error.
+    match, and a perceiving policy needs a skin of as many taxels as its perception reads.
+    Compared on the configs, before any tensor is built, so a mismatch is named rather than
+    failing as a tensor size error.
     """
     stored = stored_env_config(checkpoint, path)
     diffs: list[tuple[str, Any, Any]] = []

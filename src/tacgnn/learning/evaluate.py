@@ -194,7 +194,8 @@ def _turns(turns: np.ndarray) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentParser] = argparse.ArgumentParser) -> int:
     """`tacgnn evaluate`; user errors raise (ConfigError, CheckpointError, OSError), for the CLI to report."""
-    parser = parser_class(prog="tacgnn evaluate", description="Evaluate a PPO checkpoint on the Baoding tasks (Table III).")
+    parser = parser_class(prog="tacgnn evaluate",
+                          description="Evaluate a PPO checkpoint on the Baoding tasks (Table III).")
     parser.add_argument("checkpoint", type=Path)
     parser.add_argument("--task", default="all", choices=(*TASKS, "all"),
                         help="'all': the four 180-degree tasks; 'continuous': turns in 10 s")

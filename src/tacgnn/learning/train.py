@@ -54,7 +54,8 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
     env_cfg = replace(env_cfg, num_envs=ppo_cfg.num_envs)
     if (env_cfg.obs_mode == "perceived") != (perception_cfg is not None):
         raise ConfigError("obs_mode 'perceived' and a perception config go together "
-                          f"(obs_mode={env_cfg.obs_mode!r}, perception config {'given' if perception_cfg else 'missing'})")
+                          f"(obs_mode={env_cfg.obs_mode!r}, "
+                          f"perception config {'given' if perception_cfg else 'missing'})")
     torch.set_num_threads(ppo_cfg.torch_threads)
     if run_dir.is_dir():
         for tmp in remove_stale_temp_files(run_dir):
@@ -63,7 +64,8 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
     start = _initial_weights(ppo_cfg) if checkpoint is None and ppo_cfg.init_from else None
 
     seed_everything(ppo_cfg.seed)
-    perception = None if perception_cfg is None else OnlinePerception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed)
+    perception = (None if perception_cfg is None
+                  else OnlinePerception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed))
     env = RslBaodingEnv(env_cfg, ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs, perception=perception,
                         privileged_critic=ppo_cfg.privileged_critic)
     if perception is not None:
@@ -82,7 +84,8 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
         frames = ckpt.load_frames(run_dir, checkpoint["iteration"]) if perception is not None else None
         if perception is not None and frames is None:
             log.warning("%s is missing: the perception's frame buffer refills from empty, so this run will "
-                        "not match an uninterrupted one bit for bit", ckpt.frames_path(run_dir, checkpoint["iteration"]))
+                        "not match an uninterrupted one bit for bit",
+                        ckpt.frames_path(run_dir, checkpoint["iteration"]))
         runner.restore(checkpoint, frames)
         runner.last_checkpoint = path
         print(f"resuming {path} at iteration {checkpoint['iteration']}")

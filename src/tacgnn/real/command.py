@@ -108,7 +108,8 @@ def _action(args, cfg) -> int:
         from tacgnn.hand.allegro import HandConfig
         from tacgnn.tools.sysid import StepProtocol
 
-        targets = StepProtocol(tuple(args.levels_deg), args.hold_steps, sequential=not args.together).targets(HandConfig())
+        protocol = StepProtocol(tuple(args.levels_deg), args.hold_steps, sequential=not args.together)
+        targets = protocol.targets(HandConfig())
         print(f"commanding {len(targets)} steps ({len(targets) / cfg.rate_hz:.0f} s)")
         print(f"wrote {ros.record_steps(cfg, targets, args.out)}")
     elif args.action == "record-skin":

@@ -96,7 +96,8 @@ class RosConfig:
         check(self.stale_periods > 0, "ros.stale_periods", f"must be positive, got {self.stale_periods}")
         check(0 <= self.align_delay_s < 1 / self.rate_hz, "ros.align_delay_s",
               f"must be in [0, one period = 1 / rate_hz = {1 / self.rate_hz:g} s), got {self.align_delay_s}")
-        check(self.clock in ("joint_states", "timer"), "ros.clock", f"must be joint_states or timer, got {self.clock!r}")
+        check(self.clock in ("joint_states", "timer"), "ros.clock",
+              f"must be joint_states or timer, got {self.clock!r}")
         check(self.startup_timeout_s > 0, "ros.startup_timeout_s", "must be positive")
 
     @property
@@ -459,7 +460,8 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
             stats.latency_s.append(done - scheduled)
             stats.compute_s.append(done - began)
             if done - scheduled > cfg.period:
-                stats.slow_ticks.append((stats.ticks, round(1e3 * (began - scheduled), 2), round(1e3 * (done - began), 2)))
+                stats.slow_ticks.append((stats.ticks, round(1e3 * (began - scheduled), 2),
+                                         round(1e3 * (done - began), 2)))
             if bag is not None:
                 bag.tick(began, tick, msg)
         if stats.ticks % log_every == 0:

@@ -82,7 +82,8 @@ class SkinCalibration:
         sizes = tuple(p.size for p in layout.patches)
         if (names, sizes) != (tuple(self.patch_names), tuple(self.patch_sizes)):
             raise CalibrationError(f"skin calibration {self.source}: made for patches "
-                                   f"{dict(zip(self.patch_names, self.patch_sizes))}, the skin has {dict(zip(names, sizes))}")
+                                   f"{dict(zip(self.patch_names, self.patch_sizes))}, "
+                                   f"the skin has {dict(zip(names, sizes))}")
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)

@@ -14,8 +14,9 @@ radius pressed by 1 N on that patch. Taxel i of the contact's patch reads
 with d_i the taxel's distance to the contact point and E = 2 pi a^2 / (3 pitch^2) the
 sum of w over an unbounded grid. Inside a patch, and on the border's strip half a pitch
 wide that the outer taxels cover, the readings sum to F_n (k = `EDGE_FLOOR` is small
-enough for that, corners included); a contact further off the skin loses what falls off. Readings of several contacts add;
-values below the threshold read 0; then multiplicative Gaussian noise.
+enough for that, corners included); a contact further off the skin loses what falls off.
+Readings of several contacts add; values below the threshold read 0; then multiplicative
+Gaussian noise.
 
 The contacts come from one MuJoCo ``contact`` sensor per patch (the K strongest
 contacts of the patch's link, computed in C by the engine). In Python, the cost per

@@ -4,8 +4,9 @@ The same model as `tactile.py` (a Hertzian disc per contact, threshold, counter-
 noise with the same draws), written with fixed shapes so that a GPU runs it without
 host round trips: every contact slot of every patch is paired with every taxel of its
 patch, K x T pairs per env (2,612 for the default skin), and the pairs a disc does not
-reach add zero; the pairs are laid out (K, T), so the readings are a sum over K. The candidate grid of `tactile.py` saves work on a CPU thread; on a GPU,
-fixed shapes are worth more than skipped pairs.
+reach add zero; the pairs are laid out (K, T), so the readings are a sum over K. The candidate
+grid of `tactile.py` saves work on a CPU thread; on a GPU, fixed shapes are worth more than
+skipped pairs.
 
 Input arrays may be numpy (returned as numpy, sharing memory on the CPU) or torch tensors
 (returned as tensors on their device), e.g. `WarpSim.device_views()`.
@@ -80,7 +81,8 @@ class DeviceTactile:
         as_numpy = isinstance(sensordata, np.ndarray)
         data = self._tensor(sensordata)
         k = self.contacts_per_patch
-        force, point = data[:, self.force_idx].reshape(len(data), -1, k), data[:, self.pos_idx].reshape(len(data), -1, k, 3)
+        force = data[:, self.force_idx].reshape(len(data), -1, k)
+        point = data[:, self.pos_idx].reshape(len(data), -1, k, 3)
         return (force.cpu().numpy(), point.cpu().numpy()) if as_numpy else (force, point)
 
     def readings(self, sensordata, xpos, xmat, rng: np.random.Generator | None = None):

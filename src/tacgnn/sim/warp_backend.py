@@ -177,7 +177,8 @@ class WarpSim:
     def device_views(self) -> dict[str, object]:
         """Torch tensors over the device arrays (no copy): sensordata, xpos, xmat (N, nbody, 9), qpos, qvel."""
         wp = self._wp
-        views = {name: wp.to_torch(getattr(self.wdata, name)) for name in ("sensordata", "xpos", "xmat", "qpos", "qvel")}
+        views = {name: wp.to_torch(getattr(self.wdata, name))
+                 for name in ("sensordata", "xpos", "xmat", "qpos", "qvel")}
         views["xmat"] = views["xmat"].reshape(self.num_envs, self.model.nbody, 9)
         return views
 

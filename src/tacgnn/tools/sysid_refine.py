@@ -47,7 +47,8 @@ class RefineConfig:
 
     def __post_init__(self) -> None:
         check(self.max_iters >= 1, "refine.max_iters", "must be >= 1")
-        check(0 < self.stiffness_bounds[0] < self.stiffness_bounds[1], "refine.stiffness_bounds", "needs 0 < low < high")
+        check(0 < self.stiffness_bounds[0] < self.stiffness_bounds[1], "refine.stiffness_bounds",
+              "needs 0 < low < high")
         check(0 <= self.damping_bounds[0] < self.damping_bounds[1], "refine.damping_bounds", "needs 0 <= low < high")
         check(0 < self.alpha < 1, "refine.alpha", f"must be in (0, 1), got {self.alpha}")
         check(self.fd_step > 0, "refine.fd_step", "must be positive")
