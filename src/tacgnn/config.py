@@ -16,11 +16,14 @@ import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import yaml
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")  # a config dataclass
 
 
 class ConfigError(ValueError):
@@ -88,7 +91,7 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
     if origin is typing.Literal:
         check(value in args, key, f"must be one of {list(args)}, got {value!r}")
         return value
-    if dataclasses.is_dataclass(annotation):
+    if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
         if isinstance(value, annotation):
             return value
         check(isinstance(value, Mapping), key, f"expected a mapping, got {type(value).__name__}")

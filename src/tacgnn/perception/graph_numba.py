@@ -158,7 +158,9 @@ def _follow_torch_threads() -> None:
     """
     import numba
 
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+    # NUMBA_NUM_THREADS is set at import by numba.config from the environment, so no checker can see it
+    max_threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    numba.set_num_threads(max(1, min(torch.get_num_threads(), max_threads)))
 
 
 def _coordinates(x: Tensor) -> np.ndarray:

@@ -76,6 +76,7 @@ class Objective:
     def _orientation_candidates(self, target: Tensor) -> Tensor:
         """(B, S, 6): the 6D labels of all symmetric equivalents of each target rotation."""
         rot = torch.stack([target[:, 3:6], target[:, 6:9], torch.cross(target[:, 3:6], target[:, 6:9], dim=1)], 2)
+        assert self._sym is not None, f"no rotation symmetries listed for {self.task!r}"
         eq = rot[:, None] @ self._sym.to(rot)  # (B, S, 3, 3)
         return torch.cat([eq[..., 0], eq[..., 1]], dim=-1)
 

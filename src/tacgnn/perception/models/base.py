@@ -66,8 +66,9 @@ class PerceptionModel(nn.Module):
     def reset_parameters(self) -> None:
         """Re-draw every weight as at construction."""
         for m in self.modules():
-            if m is not self and hasattr(m, "reset_parameters"):
-                m.reset_parameters()
+            reset = getattr(m, "reset_parameters", None)
+            if m is not self and reset is not None:
+                reset()
 
 
 def reading_input(readings: Tensor, kind: str) -> Tensor:

@@ -33,6 +33,8 @@ class TactileCNN(PerceptionModel):
         - **output:** ``(B, out_dim)``
     """
 
+    pixel: Tensor  # buffer, registered in __init__
+
     def __init__(self, out_dim: int = 6, num_taxels: int = 653, image_size: int = 36,
                  layout: Tensor | None = None, reading_feature: str = "raw") -> None:
         super().__init__()
@@ -53,7 +55,7 @@ class TactileCNN(PerceptionModel):
             nn.Conv2d(1, 32, 3), nn.MaxPool2d(2), nn.ReLU(),
             nn.Conv2d(32, 16, 3), nn.MaxPool2d(2), nn.ReLU(),
             nn.Flatten(),
-        ).to(memory_format=torch.channels_last)
+        ).to(memory_format=torch.channels_last)  # type: ignore[call-overload]  # Module.to takes it; the stubs omit it
         side = ((S - 2) // 2 - 2) // 2
         self.head = mlp([16 * side * side, 128, out_dim])
 

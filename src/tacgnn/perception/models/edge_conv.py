@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 from torch import Tensor, nn
 
@@ -58,7 +60,7 @@ class EdgeMaxConv(nn.Module):
 
     def reset_parameters(self) -> None:
         self.lin1.reset_parameters()
-        for lin in self.hidden:
+        for lin in self._hidden():
             lin.reset_parameters()
         self.lin2.reset_parameters()
 
@@ -89,9 +91,13 @@ class EdgeMaxConv(nn.Module):
         """
         K, n, C = c_j.shape
         e = c_j.add_(a_i).relu_().view(K * n, C)
-        for lin in self.hidden:
+        for lin in self._hidden():
             e = torch.addmm(lin.bias, e, lin.weight.t()).relu_()
         return (e @ self.lin2.weight.t()).view(K, n, -1)
+
+    def _hidden(self) -> list[nn.Linear]:
+        """The hidden layers, typed as Linear (a ModuleList iterates as plain Modules)."""
+        return cast("list[nn.Linear]", self.hidden)
 
     def aggregate(self, messages: Tensor) -> Tensor:
         """Max over each node's K neighbour slots: ``(K, n, C) -> (n, C)``."""

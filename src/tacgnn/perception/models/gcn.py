@@ -72,6 +72,10 @@ class TactileGCN(PerceptionModel):
         - **output:** ``(B, out_dim)``
     """
 
+    edge_index: Tensor  # buffers, registered in __init__
+    edge_weight: Tensor
+    rest: Tensor
+
     def __init__(self, rest_positions: Tensor, out_dim: int = 6, k: int = 6,
                  channels: tuple[int, ...] = (32, 32, 32), reading_feature: str = "raw",
                  node_positions: str = "current") -> None:

@@ -96,7 +96,7 @@ class GraphBuilder:
         keep = None
         if sample:
             kept = fps_counts(counts, self.ratio)
-            keep = fps if first_sample else prefix_rows(counts, kept)
+            keep = prefix_rows(counts, kept) if fps is None else fps  # FPS rows come with the first sample only
             self.pos, self.counts, self.sampled = self.pos.index_select(0, keep), kept, True
         return GraphLevel(neighbours, counts, keep)
 

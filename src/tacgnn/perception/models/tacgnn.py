@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 from torch import Tensor, nn
 
@@ -131,7 +133,8 @@ class TacGNN(PerceptionModel):
         x = x.to(self.dtype)
         joints = None if joints is None else joints.to(x.dtype)
         if x.shape[0] == 0:  # whole batch in the blind area: the pooled feature is 0
-            return self._readout(x.new_zeros(B, self.head[0].in_features - self.joint_inputs), joints)
+            pooled_dim = cast(nn.Linear, self.head[0]).in_features - self.joint_inputs
+            return self._readout(x.new_zeros(B, pooled_dim), joints)
         order = canonical_order(x.detach(), batch, None if force is None else force.detach().reshape(-1))
         x, batch = x.index_select(0, order), batch.index_select(0, order)
         if cfg.pos_scale != 1.0:

@@ -119,7 +119,7 @@ class TemporalPerception(nn.Module):
     def init_output(self, mean: Tensor) -> None:
         """Start the frame's estimate and the episode's first estimate at the mean label (cm)."""
         with torch.no_grad():
-            self.frame_head[-1].bias.copy_(mean)
+            self.frame_head[-1].get_parameter("bias").copy_(mean)
             self.y0.copy_(mean)
 
     def initial_state(self, batch: int) -> Tensor:
