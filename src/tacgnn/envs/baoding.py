@@ -156,7 +156,8 @@ class BaodingConfig:
         check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         check(self.max_episode_steps >= 1, "max_episode_steps", "must be >= 1")
         substeps = self.control_dt / self.sim.timestep
-        check(0 < self.control_dt <= 1 and abs(substeps - round(substeps)) < 1e-6, "control_dt",
+        whole = round(substeps) >= 1 and abs(substeps - round(substeps)) < 1e-6
+        check(0 < self.control_dt <= 1 and whole, "control_dt",
               f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
         steps = self.continuous_seconds / self.control_dt if self.control_dt > 0 else 0.0
         check(self.continuous_seconds > 0 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",

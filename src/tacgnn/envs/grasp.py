@@ -56,7 +56,8 @@ class GraspConfig:
     def __post_init__(self) -> None:
         check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         substeps = self.control_dt / self.sim.timestep
-        check(0 < self.control_dt <= 1 and abs(substeps - round(substeps)) < 1e-6, "control_dt",
+        whole = round(substeps) >= 1 and abs(substeps - round(substeps)) < 1e-6
+        check(0 < self.control_dt <= 1 and whole, "control_dt",
               f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
         for key in ("settle_steps", "close_steps", "hold_steps"):
             check(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")

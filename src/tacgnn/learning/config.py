@@ -100,7 +100,8 @@ class PPOConfig:
         check(self.num_envs * self.num_steps_per_env <= 1 << 22, "num_steps_per_env",  # rollout storage ~2.5 GB
               f"num_envs x num_steps_per_env must be <= {1 << 22}, got {self.num_envs * self.num_steps_per_env}")
         check(self.num_envs * self.num_steps_per_env >= self.num_mini_batches, "num_mini_batches",
-              "more mini-batches than samples per iteration")
+              f"{self.num_mini_batches} mini-batches, more than the samples per iteration "
+              f"(num_envs x num_steps_per_env = {self.num_envs * self.num_steps_per_env})")
         check(self.learning_rate > 0, "learning_rate", "must be positive")
         check(self.desired_kl > 0, "desired_kl", "must be positive")
         check(0 < self.gamma <= 1, "gamma", f"needs 0 < gamma <= 1, got {self.gamma}")

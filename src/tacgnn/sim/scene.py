@@ -53,7 +53,8 @@ class SimConfig:
         check(self.backend in ("c", "warp"), "sim.backend", f"must be 'c' or 'warp', got {self.backend!r}")
         check(self.backend != "warp" or importlib.util.find_spec("mujoco_warp") is not None, "sim.backend",
               "'warp' needs the mujoco-warp package (pip install mujoco-warp==4.0.0)")
-        check(self.warp_nconmax >= 1 and self.warp_njmax >= 1, "sim.warp_nconmax", "buffers must be >= 1")
+        check(self.warp_nconmax >= 1, "sim.warp_nconmax", f"must be >= 1, got {self.warp_nconmax}")
+        check(self.warp_njmax >= 1, "sim.warp_njmax", f"must be >= 1, got {self.warp_njmax}")
         check(self.contact_timeconst >= 2 * self.timestep - 1e-12, "sim.contact_timeconst",
               f"must be >= 2 x sim.timestep ({2 * self.timestep}) or the contacts are unstable, "
               f"got {self.contact_timeconst}")

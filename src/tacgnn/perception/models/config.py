@@ -141,8 +141,8 @@ class PerceptionModelConfig:
         check(self.pool in POOLS, "pool", f"must be one of {POOLS}, got {self.pool!r}")
         check(_is_number(self.pos_scale) and 0 < self.pos_scale < math.inf, "pos_scale",
               f"must be a positive number, got {self.pos_scale!r}")
-        check(_is_int(self.joint_inputs) and self.joint_inputs >= 0, "joint_inputs",
-              f"must be an int >= 0, got {self.joint_inputs!r}")
+        check(self.joint_inputs in (0, 16) and _is_int(self.joint_inputs), "joint_inputs",
+              f"must be 0 (skin only) or 16 (the hand's joint angles), got {self.joint_inputs!r}")
         check(not self.joint_inputs or self.name in ("tacgnn", "mlp"), "joint_inputs",
               f"is supported by tacgnn and mlp, not {self.name!r}")
         for f in _BOOLS:
