@@ -136,13 +136,18 @@ def _press_on_surface(tactile, model, data, patch_index, cells, force):
     return tactile.readings(sd, data.xpos[None], data.xmat[None])[0]
 
 
-def test_taxels_report_the_force_of_contacts_on_the_covered_area():
+def _noiseless_skin_at_the_start_pose():
+    """(skin, model, data at the start pose, its noise-free tactile model)."""
     skin = replace(default_skin(), noise=0.0)
     env = BaodingEnv(BaodingConfig(num_envs=1, skin=skin))
     m, d = env.model, mujoco.MjData(env.model)
     d.qpos[:] = env.sim.qpos[0]
     mujoco.mj_forward(m, d)
-    tactile = TactileModel(skin, m)
+    return skin, m, d, TactileModel(skin, m)
+
+
+def test_taxels_report_the_force_of_contacts_on_the_covered_area():
+    skin, m, d, tactile = _noiseless_skin_at_the_start_pose()
     rng = np.random.default_rng(0)
     for k, patch in enumerate(skin.patches):
         cells = patch.grid_cells().astype(float)
@@ -194,12 +199,7 @@ def test_squeezing_the_balls_costs_reward_above_the_free_force():
 def test_a_typical_contact_activates_4_to_5_taxels_on_every_patch():
     """The paper's 4-5 taxels per ball contact, on average over where the contact lands, at the
     task's typical contact force (TYPICAL_CONTACT_FORCE, measured on the ground-truth policy)."""
-    skin = replace(default_skin(), noise=0.0)
-    env = BaodingEnv(BaodingConfig(num_envs=1, skin=skin))
-    m, d = env.model, mujoco.MjData(env.model)
-    d.qpos[:] = env.sim.qpos[0]
-    mujoco.mj_forward(m, d)
-    tactile = TactileModel(skin, m)
+    skin, m, d, tactile = _noiseless_skin_at_the_start_pose()
     rng = np.random.default_rng(1)
     for k, patch in enumerate(skin.patches):
         cells = patch.grid_cells().astype(float)
