@@ -35,7 +35,8 @@ from tacgnn.perception.checkpoint import load_checkpoint as load_perception_chec
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.provenance import provenance
 
-TASKS_180 = ("simple", "middle", "hard", "hold")  # the paper's three, and Simple with a 1 s hold
+TASKS_180: tuple[Literal["simple", "middle", "hard", "hold"], ...] = (  # the paper's three, and Simple with a 1 s hold
+    "simple", "middle", "hard", "hold")
 TASKS = (*TASKS_180, "continuous")  # and as many turns as possible in 10 s
 
 

@@ -37,7 +37,8 @@ class GuardedPPO(PPO):
         """Step pre-hook: raise before Adam writes a gradient that is NaN or Inf (after clipping)."""
         self._mini_batch += 1
         params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
-        finite = torch.stack([torch.isfinite(p.grad).all() for p in params]) if params else torch.ones(0, dtype=bool)
+        finite = (torch.stack([torch.isfinite(p.grad).all() for p in params]) if params
+                  else torch.ones(0, dtype=torch.bool))
         if not bool(finite.all()):
             bad = [self._param_names.get(id(p), "?") for p, ok in zip(params, finite.tolist()) if not ok]
             raise NonFiniteUpdate(f"non-finite gradient in mini-batch {self._mini_batch} "

@@ -58,8 +58,10 @@ class RslBaodingEnv(VecEnv):
         self.on_step: Callable[[dict], None] | None = None
         self.cfg = to_dict(config)
         self.num_envs = config.num_envs
-        self.num_actions = int(self.env.single_action_space.shape[0])
-        self.num_obs = int(self.env.single_observation_space.shape[0])
+        action_shape, obs_shape = self.env.single_action_space.shape, self.env.single_observation_space.shape
+        assert action_shape is not None and obs_shape is not None  # both are Boxes in these obs modes
+        self.num_actions = int(action_shape[0])
+        self.num_obs = int(obs_shape[0])
         self.max_episode_length = self.env.episode_limit
         self.device = "cpu"
         self.reward_scale = reward_scale

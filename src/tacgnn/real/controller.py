@@ -154,6 +154,7 @@ class BlindController:
         if self.last_action is None:
             self.reset(q)
         balls = self.perceive(q, s.astype(np.float32), skin_joint_pos)
+        assert self.last_action is not None  # reset() set it
         return observation.assemble(q[None], qd[None], balls[None], self.last_action[None], self.joint_low,
                                     self.joint_high)[0]
 

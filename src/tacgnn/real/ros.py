@@ -149,7 +149,7 @@ def import_message(type_name: str) -> type:
         raise ImportError(f"cannot import message {type_name}: is its package built and sourced?") from err
 
 
-def tactile_message_class(cfg: RosConfig) -> type:
+def tactile_message_class(cfg: RosConfig) -> Any:
     """The skin message class: its package's, or (ROS 1, package not installed) one generated
     from `tactile_fields` as one float32[] per field, which is what the simulated hand sends."""
     try:
@@ -486,7 +486,7 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
 class _RunRecorder:
     """Writes, per commanding tick, the joint state and skin message it used and its command."""
 
-    def __init__(self, path: str | Path, cfg: RosConfig, tactile_cls: type):
+    def __init__(self, path: str | Path, cfg: RosConfig, tactile_cls: Any):  # a generated ROS message class
         from tacgnn.real.bag import BagWriter
 
         self.cfg = cfg
@@ -495,6 +495,7 @@ class _RunRecorder:
 
     def tick(self, t: float, tick: ControlTick, command: Any) -> None:
         time_s = t - self.t0 + 1.0  # bag times must be positive
+        assert tick.used is not None  # the tick commanded, so it kept its messages
         joint_msg, skin_msg = tick.used
         if tick.reset_now:
             self.writer.write(self.cfg.episode_topic or "/tacgnn/episode", "std_msgs/Int32",
@@ -555,7 +556,8 @@ def record_steps(cfg: RosConfig, targets: np.ndarray, out: str | Path) -> Path:
     publish = node.publisher(cfg.joint_cmd_topic, node.JointState)
     node.wait_for(f"joint state on {cfg.joint_state_topic}", joints, cfg.startup_timeout_s)
     decode_joint_state(joints.msg, cfg.joint_names)  # names checked before the first command
-    times, measured = [], []
+    times: list[float] = []
+    measured: list[np.ndarray] = []
 
     def step(_scheduled: float) -> bool:
         t = len(measured)
@@ -617,5 +619,5 @@ def record_skin(cfg: RosConfig, frames: int, out: str | Path, layout=None) -> Pa
     rows = [decode_tactile(msg, cfg.tactile_fields) for _, msg in received]
     arrays = {p.name: np.stack([r[p.name] for r in rows]) for p in layout.patches}
     out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(out, **arrays)
+    np.savez(out, **arrays)  # type: ignore[arg-type]  # numpy's stub matches **arrays against allow_pickle
     return out

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -40,7 +40,7 @@ log = logging.getLogger("tacgnn.real")
 
 @dataclass(frozen=True)
 class SimHandConfig:
-    task: str = "simple"
+    task: Literal["simple", "middle", "hard"] = "simple"
     episodes: int = 64
     seed: int = 0
     latency_s: float = 0.0
@@ -148,7 +148,7 @@ class SimHand:
         pub_joints = node.publisher(ros.joint_state_topic, node.JointState)
         pub_skin = node.publisher(ros.tactile_topic, tactile_cls)
         pub_episode = node.publisher(ros.episode_topic, node.Int32, latch=True) if ros.episode_topic else None
-        command = {"target": None, "count": 0}
+        command: dict[str, Any] = {"target": None, "count": 0}
 
         def on_command(msg):
             from tacgnn.real.ros import decode_joint_state

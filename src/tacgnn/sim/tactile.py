@@ -347,7 +347,7 @@ class TactileModel:
         n = sensordata.shape[0]
         out = np.zeros(n * self.num_taxels, np.float32)
         noise = self.layout.noise if rng is not None else 0.0
-        seed = draw_step_seed(rng) if noise > 0 else np.uint64(0)
+        seed = draw_step_seed(rng) if rng is not None and noise > 0 else np.uint64(0)
         kernel = _compiled_press() if self.use_compiled else None
         if kernel is not None:
             g = self._grid

@@ -49,25 +49,25 @@ class DeviceTactile:
         ref = TactileModel(layout, model)
         self.layout, self.num_taxels = layout, layout.num_taxels
         self.device = torch.device(device)
-        dev = dict(device=self.device)
+        dev = self.device
         patches = layout.patches
         patch_of_slot = ref._patch_of_slot  # (S,) slots: patch-major, K contacts per patch
-        self.force_idx = torch.as_tensor(ref._force_idx.ravel(), **dev)
-        self.pos_idx = torch.as_tensor(ref._pos_idx.reshape(-1, 3), **dev)
-        self.slot_body = torch.as_tensor(ref.body_ids[patch_of_slot], **dev)
-        self.slot_radius = torch.as_tensor(ref._radius[patch_of_slot], **dev)  # a_1N, float64
-        self.slot_floor = torch.as_tensor(ref._floor_over_a2[patch_of_slot], **dev)  # k E / a^2
+        self.force_idx = torch.as_tensor(ref._force_idx.ravel(), device=dev)
+        self.pos_idx = torch.as_tensor(ref._pos_idx.reshape(-1, 3), device=dev)
+        self.slot_body = torch.as_tensor(ref.body_ids[patch_of_slot], device=dev)
+        self.slot_radius = torch.as_tensor(ref._radius[patch_of_slot], device=dev)  # a_1N, float64
+        self.slot_floor = torch.as_tensor(ref._floor_over_a2[patch_of_slot], device=dev)  # k E / a^2
         # pairs (k, taxel t) for k < K: t with its patch's k-th contact slot; (K * T,) row-major
         k_count = ref.contacts_per_patch
         slot_of_pair = ref.patch_of_taxel[None, :] * k_count + np.arange(k_count)[:, None]
-        self.slot_of_pair = torch.as_tensor(slot_of_pair.ravel(), **dev)
-        self.pair_xyz = torch.as_tensor(np.tile(ref.local_positions.T, (1, k_count)), **dev)  # (3, K * T)
+        self.slot_of_pair = torch.as_tensor(slot_of_pair.ravel(), device=dev)
+        self.pair_xyz = torch.as_tensor(np.tile(ref.local_positions.T, (1, k_count)), device=dev)  # (3, K * T)
         patch_onehot = np.eye(len(patches))[ref.patch_of_taxel]  # (T, P): sums each patch's taxels
-        self.patch_onehot = torch.as_tensor(patch_onehot, dtype=torch.float32, **dev)
+        self.patch_onehot = torch.as_tensor(patch_onehot, dtype=torch.float32, device=dev)
         self.contacts_per_patch = k_count
-        self.body_of_taxel = torch.as_tensor(ref.body_ids[ref.patch_of_taxel], **dev)
-        self.local_positions = torch.as_tensor(ref.local_positions, **dev)  # (T, 3) float32
-        self.table = torch.as_tensor(normal_table(), **dev)
+        self.body_of_taxel = torch.as_tensor(ref.body_ids[ref.patch_of_taxel], device=dev)
+        self.local_positions = torch.as_tensor(ref.local_positions, device=dev)  # (T, 3) float32
+        self.table = torch.as_tensor(normal_table(), device=dev)
         self.num_slots = len(patch_of_slot)
 
     def _tensor(self, array) -> torch.Tensor:
@@ -91,7 +91,7 @@ class DeviceTactile:
         sensordata, xpos, xmat = (self._tensor(a) for a in (sensordata, xpos, xmat))
         n = sensordata.shape[0]
         noise = self.layout.noise if rng is not None else 0.0
-        seed = draw_step_seed(rng) if noise > 0 else np.uint64(0)  # the same draw as TactileModel
+        seed = draw_step_seed(rng) if rng is not None and noise > 0 else np.uint64(0)  # as TactileModel draws
 
         force = sensordata[:, self.force_idx]  # (N, S) normal forces, 0 in empty slots
         point = sensordata[:, self.pos_idx]  # (N, S, 3) world contact points

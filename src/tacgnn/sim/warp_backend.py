@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copy
 import logging
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -105,6 +106,18 @@ class WarpSim:
     Attributes: as `BatchedSim`; all (N, ...) numpy arrays, float32.
     """
 
+    # set from the Data fields of the same names in __init__ (_STATE, _DERIVED, time)
+    qpos: np.ndarray
+    qvel: np.ndarray
+    ctrl: np.ndarray
+    xfrc_applied: np.ndarray
+    qacc_warmstart: np.ndarray
+    xpos: np.ndarray
+    xmat: np.ndarray
+    sensordata: np.ndarray
+    actuator_force: np.ndarray
+    time: np.ndarray
+
     def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cpu", nconmax: int = 64,
                  njmax: int = 256, max_speed: float = 1000.0, mirror: bool | None = None):
         if num_envs < 1:
@@ -129,7 +142,7 @@ class WarpSim:
             self.wdata = mjw.put_data(m, data, nworld=num_envs, nconmax=nconmax, njmax=njmax)
         self.wmodel.opt.warn_overflow = 0  # `step` checks the flags itself
         self.nconmax, self.njmax = nconmax, njmax
-        self._expanded: dict[str, tuple[object, np.ndarray]] = {}  # field -> (device array, view)
+        self._expanded: dict[str, tuple[Any, np.ndarray]] = {}  # field -> (device array (warp), view)
         self._mask = wp.zeros(num_envs, dtype=bool, device=self.device)
         for name in _STATE + _DERIVED + ("time",):
             setattr(self, name, self._view(getattr(self.wdata, name)))
@@ -280,13 +293,13 @@ class IntegrationState:
     def __init__(self, sim: WarpSim):
         self._sim = sim
         self.shape = (sim.num_envs, sim.nstate)
-        self._parts = []  # (Data field, columns)
+        self._parts: list[tuple[str, slice]] = []  # (Data field, columns)
         start = 0
         for component, name in _INTEGRATION_STATE:
             size = mujoco.mj_stateSize(sim.model, component)
-            if size and name is None:
-                raise WarpUnavailable(f"sim.backend: warp does not carry the model's {component.name} state")
             if size:
+                if name is None:
+                    raise WarpUnavailable(f"sim.backend: warp does not carry the model's {component.name} state")
                 self._parts.append((name, slice(start, start + size)))
             start += size
 

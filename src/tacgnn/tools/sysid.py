@@ -310,13 +310,14 @@ def write_outputs(result: SysIdResult, rec: JointRecording, out: str | Path, bas
 
 def summary(result: SysIdResult, rec: JointRecording) -> str:
     """A table for the terminal: joint, best pair, its RMS error, and the truth when known."""
-    known = rec.true_stiffness is not None and rec.true_damping is not None
+    k_true, d_true = rec.true_stiffness, rec.true_damping
+    known = k_true is not None and d_true is not None
     lines = [f"{'joint':<10} {'stiffness':>9} {'damping':>8} {'rms err (deg)':>14}" + ("   true" if known else "")]
     for j, name in enumerate(JOINT_NAMES):
         line = (f"{name:<10} {result.stiffness[j]:>9.4g} {result.damping[j]:>8.4g} "
                 f"{np.rad2deg(result.best_errors[j]):>14.4f}")
-        if known:
-            ok = result.stiffness[j] == rec.true_stiffness[j] and result.damping[j] == rec.true_damping[j]
-            line += f"   ({rec.true_stiffness[j]:.4g}, {rec.true_damping[j]:.4g}) {'ok' if ok else 'MISMATCH'}"
+        if k_true is not None and d_true is not None:
+            ok = result.stiffness[j] == k_true[j] and result.damping[j] == d_true[j]
+            line += f"   ({k_true[j]:.4g}, {d_true[j]:.4g}) {'ok' if ok else 'MISMATCH'}"
         lines.append(line)
     return "\n".join(lines)

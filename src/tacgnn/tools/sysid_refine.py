@@ -144,20 +144,21 @@ def refine(rec: JointRecording, start_stiffness: np.ndarray, start_damping: np.n
 
 def refine_summary(result: RefineResult, rec: JointRecording) -> str:
     """A table for the terminal: per joint the fit, its simultaneous interval and the truth when known."""
-    known = rec.true_stiffness is not None and rec.true_damping is not None
+    k_true, d_true = rec.true_stiffness, rec.true_damping
+    inside = result.covers(k_true, d_true) if k_true is not None and d_true is not None else None
+    known = inside is not None
     level = f"{100 * (1 - result.alpha):.0f} %"
     lines = [f"{'joint':<10} {'stiffness':>9} {f'[{level} interval]':>20} {'damping':>8} {f'[{level} interval]':>20} "
              f"{'rms (deg)':>9}" + ("   true" if known else "")]
-    inside = result.covers(rec.true_stiffness, rec.true_damping) if known else None
     for j, name in enumerate(JOINT_NAMES):
         (k0, k1), (d0, d1) = result.stiffness_interval[j], result.damping_interval[j]
         line = (f"{name:<10} {result.stiffness[j]:>9.4g} {f'[{k0:.4g}, {k1:.4g}]':>20} {result.damping[j]:>8.4g} "
                 f"{f'[{d0:.4g}, {d1:.4g}]':>20} {np.rad2deg(result.rms[j]):>9.4f}")
-        if known:
-            line += (f"   ({rec.true_stiffness[j]:.4g}, {rec.true_damping[j]:.4g}) "
+        if k_true is not None and d_true is not None and inside is not None:
+            line += (f"   ({k_true[j]:.4g}, {d_true[j]:.4g}) "
                      f"{'inside' if inside[j] else 'OUTSIDE'}")
         lines.append(line)
-    if known:
+    if inside is not None:
         lines.append(f"truth inside the {level} intervals for {int(inside.sum())} of {NUM_JOINTS} joints")
     return "\n".join(lines)
 
