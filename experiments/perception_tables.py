@@ -40,7 +40,7 @@ PAPER_TABLE2 = {  # model: (train cm, test cm)
     "tacgnn-16": (0.340, 0.251), "tacgnn-64": (0.098, 0.085), "tacgnn-128": (0.069, 0.077),
 }
 # Table I's columns: the paper's four models; TacGNN at 32 channels (Table II's reference width),
-# at 64 (session 4: 32 channels underfit the grasps, train error = test error) and at 128
+# at 64 (32 channels underfit the grasps: train error = test error) and at 128
 TABLE1_MODELS = (("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 64), ("tacgnn", 128))
 OBJECTS = ("cube", "cylinder", "meat_can")
 CURVE_MODELS = (("mlp", 32), ("gcn", 32), ("tacgnn", 32))  # the dataset-size curve's models
@@ -179,7 +179,7 @@ def main() -> None:
     seeds = range(args.seeds)
     example = run_config("baoding", "tacgnn", 32, 0, args)
     command = " ".join(["`.venv/bin/python experiments/perception_tables.py"] + [a for a in sys.argv[1:]]) + "`"
-    lines = ["# Perception results (issue 3)", "",
+    lines = ["# Perception results", "",
              f"Made by {command}; {args.seeds} seed(s), {args.epochs} epochs, Adam lr {example.lr} "
              f"({example.lr_schedule} schedule), batch {example.batch_size}, 80/20 split"
              + (", the paper's loop and TacGNN" if args.paper_setup else

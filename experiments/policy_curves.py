@@ -52,7 +52,7 @@ def success_curve(scalars: Scalars) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     steps = np.array(sorted(points))
     values = np.array([points[s][0] for s in steps])
     wall = np.array([points[s][1] for s in steps])
-    # resumed runs: count only time spent training, not the gaps between sessions
+    # resumed runs: count only time spent training, not the gaps between runs
     gaps = np.diff(wall, prepend=wall[0])
     gaps[gaps > 60] = np.median(gaps[gaps <= 60]) if (gaps <= 60).any() else 0.0
     return steps, values, np.cumsum(gaps)
