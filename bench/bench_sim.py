@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200]
 Prints one table; docs/results.md quotes it. Targets: env >= 80 % of the raw
-physics rate, >= 5,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
+physics rate, >= 10,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
 "env/physics" is the share of an env step spent in MuJoCo (the physics rate the env
 keeps); "raw replay" steps the same batch with the same controls and nothing else. The
 skin (readings with noise, positions) is timed on the env run's last state, the one whose
