@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 if "mujoco" not in sys.modules and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
     # mujoco picks its GL backend at import; the default (GLFW) needs a display.
@@ -38,6 +38,9 @@ from matplotlib.colors import ListedColormap, Normalize
 from matplotlib.figure import Figure
 
 from tacgnn.hand.skin_layout import Patch, SkinLayout
+
+if TYPE_CHECKING:
+    from mpl_toolkits.mplot3d import Axes3D
 
 Policy = Callable[[Any], np.ndarray]
 
@@ -166,7 +169,8 @@ def skin_map(layout: SkinLayout) -> SkinMap:
     origin -= origin.min(0)
     cells = np.concatenate([origin[i] + g[0] for i, g in enumerate(grids)]).astype(float)
     cells.flags.writeable = False  # shared by the cache
-    boxes = tuple((p.name, *map(float, origin[i]), g[1], g[2]) for i, (p, g) in enumerate(zip(patches, grids)))
+    boxes = tuple((p.name, float(origin[i][0]), float(origin[i][1]), g[1], g[2])
+                  for i, (p, g) in enumerate(zip(patches, grids)))
     # Short labels fit a narrow column: "tip" over each patch, "index" over its column.
     labels = []
     for group, ids in [("palm", palm), ("thumb", thumb), *groups.items()]:
@@ -218,8 +222,9 @@ def _new_figure(width_in: float, height_in: float, dpi: float = 100) -> Figure:
 
 def figure_to_array(fig: Figure) -> np.ndarray:
     """(H, W, 3) uint8 pixels of a figure drawn on an Agg canvas."""
-    fig.canvas.draw()
-    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    canvas = cast(FigureCanvasAgg, fig.canvas)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
 def skin_map_image(layout: SkinLayout, readings: np.ndarray, ax=None, vmax: float = DEFAULT_VMAX):
@@ -261,7 +266,8 @@ class SkinPanel:
         self.height = height
         self.fig = _new_figure(self.width / dpi, height / dpi, dpi)
         self.fig.set_facecolor("#1b1b1b")
-        ax = self.fig.add_axes((0, 0, map_px / self.width, 1))
+        self.canvas = cast(FigureCanvasAgg, self.fig.canvas)  # _new_figure's
+        ax = self._ax = self.fig.add_axes((0, 0, map_px / self.width, 1))
         fontsize = float(np.clip(1.4 * cell_px * 72 / dpi, 3.5, 8))
         self.cells = _draw_skin(ax, layout, np.zeros(layout.num_taxels), vmax, "0.8", fontsize)
         ax.set_ylim(-0.5, map_height + 0.5 + caption_cells)
@@ -275,17 +281,17 @@ class SkinPanel:
         bar_ax.set_title("N", fontsize=fontsize, color="0.8")
         for artist in (self.cells, self.caption):
             artist.set_animated(True)
-        self.fig.canvas.draw()
-        self._background = self.fig.canvas.copy_from_bbox(self.fig.bbox)
+        self.canvas.draw()
+        self._background = self.canvas.copy_from_bbox(self.fig.bbox)
 
     def image(self, readings: np.ndarray, caption: str = "") -> np.ndarray:
         """(height, width, 3) uint8 picture of the skin with these readings."""
-        canvas = self.fig.canvas
+        canvas = self.canvas
         canvas.restore_region(self._background)
         self.cells.set_array(_checked(readings, self.layout))
         self.caption.set_text(caption)
-        self.cells.axes.draw_artist(self.cells)
-        self.caption.axes.draw_artist(self.caption)
+        self._ax.draw_artist(self.cells)  # both live in the map's axes
+        self._ax.draw_artist(self.caption)
         return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
@@ -444,10 +450,12 @@ def save_skin_picture(env, path: str | os.PathLike, env_index: int = 0, vmax: fl
     skin_map_image(layout, readings, ax=ax2d, vmax=vmax)
     ax2d.set_title(f"skin map: {np.count_nonzero(readings)} of {layout.num_taxels} taxels active", fontsize=9)
 
-    ax3d = fig.add_axes((0.47, 0.02, 0.52, 0.94), projection="3d")
+    ax3d = cast("Axes3D", fig.add_axes((0.47, 0.02, 0.52, 0.94), projection="3d"))
     on = readings > 0
-    ax3d.scatter(*pos[~on].T, s=3, color=IDLE_COLOUR, depthshade=False)
-    ax3d.scatter(*pos[on].T, s=14, c=readings[on], cmap=SKIN_CMAP, norm=Normalize(1e-9, vmax), depthshade=False)
+    idle, pressed = pos[~on], pos[on]
+    ax3d.scatter(idle[:, 0], idle[:, 1], idle[:, 2], s=3, color=IDLE_COLOUR, depthshade=False)
+    ax3d.scatter(pressed[:, 0], pressed[:, 1], pressed[:, 2], s=14, c=readings[on], cmap=SKIN_CMAP,
+                 norm=Normalize(1e-9, vmax), depthshade=False)
     if hasattr(env, "ball_positions"):
         radius = env.config.ball_radius
         u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16), np.linspace(0, np.pi, 9))
