@@ -212,8 +212,8 @@ def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
     _box(body, (0.0179, 0.017, 0.02275), (-0.0179, 0.009, 0.0145), d, "thumb_base_geom")
     axes = ((0, 0, 1), (0, 1, 0), (0, 1, 0))
     halves = (0.00885, 0.0257, 0.0157)
-    for k, (link, offset, axis, half_z) in enumerate(zip(LINKS[1:], THUMB_OFFSETS, axes, halves), start=1):
-        body = body.add_body(name=f"thumb_{link}", pos=list(offset))
+    for k, (link, thumb_offset, axis, half_z) in enumerate(zip(LINKS[1:], THUMB_OFFSETS, axes, halves), start=1):
+        body = body.add_body(name=f"thumb_{link}", pos=list(thumb_offset))
         _joint(body, f"thumb_j{k}", axis, ranges[f"thumb_j{k}"], cfg)
         _link_box(body, half_z, d, f"thumb_{link}_geom", DISTAL_HALF_XY if link == "distal" else LINK_HALF_XY)
     _tip(body, 0.008, 0.035, "thumb_tip_geom")
