@@ -42,6 +42,7 @@ from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
 
 log = logging.getLogger(__name__)
 
+EnvIds = np.ndarray | slice  # rows of envs: an index array, or a slice (rows as views)
 ObsMode = Literal["groundtruth", "no_perception", "finger_torque", "noise_2", "noise_4",
                   "noise_10", "perceived", "tactile"]
 # Uniform noise (m) on the ball positions for the paper's NOISE_* ablations; the authors'
@@ -265,7 +266,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         """(N, 2, 3) ball centres relative to the hand origin (world axes, m)."""
         return self.sim.xpos[:, self.ball_body]  # a copy (fancy index)
 
-    def _object_obs(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> np.ndarray:
+    def _object_obs(self, ids: EnvIds, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> np.ndarray:
         mode = self.config.obs_mode
         balls = self.ball_positions()[ids].reshape(-1, 6)
         if mode == "groundtruth":
@@ -281,12 +282,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
             joints = self.sim.qpos[ids][:, self.joint_qpos_adr]  # for a model that reads the hand's pose too
             previous = self.perceived_balls[ids] if self.config.track_balls else None
+            assert tactile is not None and taxel_pos is not None  # the config turns the skin on for 'perceived'
             pred = observation.perceive_balls(self.perception, tactile, taxel_pos, joints, previous)
             self.perceived_balls[ids] = pred
             return pred
         raise AssertionError(mode)
 
-    def _observe(self, ids: np.ndarray, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
+    def _observe(self, ids: EnvIds, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
         q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
         if self.config.obs_mode == "tactile":
             proprio = observation.proprioception(q, qd, lo, hi)
@@ -302,7 +304,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
                                     self.joint_high)
 
-    def _skin(self, ids: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+    def _skin(self, ids: EnvIds) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Readings of envs `ids`, and taxel positions if the observation needs them.
 
         Other modes get positions on demand from `taxel_positions()` (same instant,
@@ -538,12 +540,12 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             xfrc[ids, body, :3] = direction * (cfg.disturbance_std * draws[:, b, 3:])
 
     # --- task rules --------------------------------------------------------------------
-    def _ball_vector_angle(self, ids: np.ndarray) -> np.ndarray:
+    def _ball_vector_angle(self, ids: EnvIds) -> np.ndarray:
         balls = self.sim.xpos[ids][:, self.ball_body]
         v = (balls[:, 1] - balls[:, 0]) @ self.palm_axes  # palm coordinates
         return np.arctan2(v[:, 2], v[:, 1])
 
-    def _update_angle(self, ids: np.ndarray) -> np.ndarray:
+    def _update_angle(self, ids: EnvIds) -> np.ndarray:
         """Accumulate the wrapped change of the ball-to-ball angle; return it (rad)."""
         new = self._ball_vector_angle(ids)
         delta = (new - self.vec_angle[ids] + np.pi) % (2 * np.pi) - np.pi
