@@ -9,6 +9,7 @@ import torch
 from torch import Tensor, nn
 
 from tacgnn.datasets.store import DatasetError
+from tacgnn.perception.models.temporal import TemporalPerception
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.sequence_checkpoint import load_sequence_model
 from tacgnn.perception.sequence_train_config import SequenceTrainConfig
@@ -35,13 +36,15 @@ def sequence_predictions(model: nn.Module, cfg: SequenceTrainConfig, data: Seque
                            "a temporal model needs every step")
     lengths = torch.diff(torch.cat([starts, torch.tensor([len(data)])]))
     out = torch.zeros(len(data), cfg.model.out_dim)
+    assert isinstance(model, TemporalPerception)
     mcfg = model.cfg
     for i in range(0, len(starts), episodes_per_batch):
         s, n = starts[i:i + episodes_per_batch], lengths[i:i + episodes_per_batch]
         offsets = torch.arange(int(n.max()))
         valid = offsets < n.unsqueeze(1)
         rows = torch.where(valid, s.unsqueeze(1) + offsets, s.unsqueeze(1))
-        pred, _ = model(f.readings[rows], f.positions[rows], f.joints[rows] if mcfg.joints else None,
+        joints = f.joints[rows] if mcfg.joints and f.joints is not None else None
+        pred, _ = model(f.readings[rows], f.positions[rows], joints,
                         data.actions[rows] if mcfg.actions else None, valid=valid)
         out[rows[valid]] = pred[valid]
     return out
@@ -100,7 +103,7 @@ def evaluate_sequence(checkpoint: str | Path, dataset: str | Path, whole: bool =
 
 
 def error_by_steps_since_touch(checkpoint: str | Path, dataset: str | Path, bins: list[int],
-                               whole: bool = False) -> dict[str, list[float]]:
+                               whole: bool = False) -> dict[str, list[int] | list[float]]:
     """Ball position RMSE (cm) by steps since the ball last touched the skin.
 
     `bins` are the lower edges (e.g. [0, 1, 2, 4, 8, 16, 32]); bin i holds balls with
@@ -114,9 +117,9 @@ def error_by_steps_since_touch(checkpoint: str | Path, dataset: str | Path, bins
     se, _, since = matched_ball_errors(pred, data, cfg.match_balls)
     keep = data.step >= cfg.eval_from_step
     se, since = se[keep].reshape(-1), since[keep].reshape(-1)
-    edges = list(bins) + [None]
+    uppers: list[int | None] = [*bins[1:], None]
     rmse, count = [], []
-    for lo, hi in zip(edges[:-1], edges[1:]):
+    for lo, hi in zip(bins, uppers):
         sel = (since >= lo) & (since < hi if hi is not None else torch.ones_like(since, dtype=torch.bool))
         rmse.append(_rmse(se[sel]))
         count.append(int(sel.sum()))

@@ -27,6 +27,7 @@ from tacgnn.config import to_dict
 from tacgnn.datasets.store import DatasetError, read_manifest
 from tacgnn.files import atomic_write_text
 from tacgnn.perception.checkpoint import CHECKPOINT_VERSION, CheckpointError, save_checkpoint
+from tacgnn.perception.models.temporal import TemporalPerception
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.sequence_checkpoint import KIND, build_sequence_model, load_sequence_checkpoint
 from tacgnn.perception.sequence_evaluation import sequence_metrics
@@ -44,7 +45,7 @@ from tacgnn.perception.training import backward_checked, make_optimizer
 
 def init_output_bias(model: nn.Module, mean: Tensor) -> None:
     """Start a model's output at the mean label: the temporal model's own way, else the last layer's bias."""
-    if hasattr(model, "init_output"):
+    if isinstance(model, TemporalPerception):
         model.init_output(mean)
         return
     last = [m for m in model.modules() if isinstance(m, nn.Linear)][-1]
@@ -52,11 +53,13 @@ def init_output_bias(model: nn.Module, mean: Tensor) -> None:
         last.bias.copy_(mean)
 
 
-def window_inputs(data: SequenceData, rows: Tensor, model: nn.Module) -> tuple[Tensor, ...]:
+def window_inputs(data: SequenceData, rows: Tensor,
+                  model: nn.Module) -> tuple[Tensor, Tensor, Tensor | None, Tensor | None]:
     """(readings, positions, joints, actions) of window rows (B, L), as the temporal model reads them."""
+    assert isinstance(model, TemporalPerception)
     cfg = model.cfg
     f = data.frames
-    return (f.readings[rows], f.positions[rows], f.joints[rows] if cfg.joints else None,
+    return (f.readings[rows], f.positions[rows], f.joints[rows] if cfg.joints and f.joints is not None else None,
             data.actions[rows] if cfg.actions else None)
 
 
