@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-_kernels = None
+_kernels: tuple | bool | None = None  # None: not compiled yet; False: numba is missing
 
 
 def available() -> bool:

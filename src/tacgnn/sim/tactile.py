@@ -28,6 +28,8 @@ taxels that can lie within its radius.
 
 from __future__ import annotations
 
+from typing import Any
+
 import mujoco
 import numpy as np
 
@@ -268,7 +270,7 @@ def _compiled_press():
     return _press_compiled
 
 
-_press_compiled = False
+_press_compiled: Any = False  # False: not compiled yet; None: numba is missing; else the kernel
 
 
 class TactileModel:
