@@ -30,9 +30,11 @@ from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.files import FileProblem, atomic_write_text
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
+from tacgnn.learning.online_temporal import make_online_perception
 from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.models import PerceptionModelConfig
+from tacgnn.perception.sequence_checkpoint import is_sequence_checkpoint, load_sequence_model
 from tacgnn.provenance import provenance
 
 TASKS_180: tuple[Literal["simple", "middle", "hard", "hold"], ...] = (  # the paper's three, and Simple with a 1 s hold
@@ -92,6 +94,11 @@ def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
     or the perception a 'perceived' policy checkpoint was trained with."""
     if not Path(path).is_file():
         raise FileNotFoundError(f"perception file not found: {path}")
+    if is_sequence_checkpoint(path):  # train-perception --temporal: a filter per env
+        _, stored, _ = load_sequence_model(path, temporal=True)
+        cfg = OnlinePerceptionConfig(model=stored.model.frame, pretrained=str(path), temporal=True,
+                                     window=1, buffer_size=32, batch_size=32, epochs=0)
+        return make_online_perception(cfg, skin)
     try:
         payload = load_perception_checkpoint(path)
     except (ValueError, FileProblem):
@@ -156,6 +163,8 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
                          f"the env's skin has {env_cfg.skin.num_taxels}")
     policy, _ = load_policy(checkpoint)
     env = BaodingEnv(env_cfg, perception=perception)
+    if hasattr(perception, "bind_env"):  # a temporal perception keeps one state per env
+        perception.bind_env(env)
     obs, _ = env.reset(seed=seed)
 
     quota = np.full(n, episodes // n)

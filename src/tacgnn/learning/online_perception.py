@@ -54,9 +54,33 @@ class OnlinePerceptionConfig:
     """Before PPO first updates the policy: rounds of (the starting policy acts on the perceived
     balls for `update_every_steps` env steps, then one perception update). Not in the paper;
     see `tacgnn.learning.runner.Runner.warm_up_perception`."""
+    temporal: bool = False
+    """A temporal perception (`tacgnn.learning.online_temporal`): `model` is its per-frame encoder,
+    a filter carries the balls through frames without contact, its state kept per env and reset
+    at each episode's start; it learns from windows of consecutive recorded frames."""
+    window: int = 16
+    """temporal: frames per training window (truncated back-propagation through time)."""
+    burn_in: int = 64
+    """temporal: recorded frames before a window that bring the state up without gradient."""
+    temporal_feature: int = 64
+    """temporal: width of the per-frame feature."""
+    temporal_hidden: int = 128
+    """temporal: width of the GRU state."""
 
     def __post_init__(self) -> None:
         check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
+        if self.temporal:
+            check(self.record_every == 1, "perception.record_every", "must be 1 with temporal (windows of consecutive "
+                  f"steps), got {self.record_every}")
+            check(self.model.joint_inputs == 0, "perception.model.joint_inputs",
+                  "must be 0 with temporal: the temporal model reads the joint angles itself")
+            check(self.model.name in ("tacgnn", "mlp", "cnn"), "perception.model.name",
+                  f"a temporal model's frame encoder is tacgnn, mlp or cnn, got {self.model.name!r}")
+            check(1 <= self.window <= self.buffer_size, "perception.window",
+                  f"must be in 1..buffer_size ({self.buffer_size}), got {self.window}")
+            check(self.burn_in >= 0, "perception.burn_in", f"must be >= 0, got {self.burn_in}")
+            check(self.temporal_feature >= 1 and self.temporal_hidden >= 1, "perception.temporal_feature",
+                  "temporal_feature and temporal_hidden must be >= 1")
         check(self.update_every_steps >= 1, "perception.update_every_steps", "must be >= 1")
         check(self.epochs >= 0, "perception.epochs", "must be >= 0")
         check(self.buffer_size >= self.batch_size >= 1, "perception.buffer_size", "must be >= batch_size >= 1")

@@ -20,6 +20,7 @@ from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
+from tacgnn.learning.online_temporal import make_online_perception
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
@@ -70,7 +71,8 @@ def load_perception(path: str | Path) -> OnlinePerception | None:
         return None
     state = data["perception"]
     cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": ""})
-    perception = OnlinePerception(replace(cfg, buffer_size=cfg.batch_size), data["env_config"]["skin"])
+    cfg = replace(cfg, buffer_size=max(cfg.batch_size, cfg.window if cfg.temporal else 1))  # no frames to keep
+    perception = make_online_perception(cfg, data["env_config"]["skin"])
     perception.model.load_state_dict(state["model"])
     perception.updates = state["updates"]
     return perception

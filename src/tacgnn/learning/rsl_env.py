@@ -55,6 +55,8 @@ class RslBaodingEnv(VecEnv):
             raise ValueError("obs_mode 'tactile' gives a dict of raw skin arrays, which an MLP policy cannot "
                              "read; use 'perceived' with a perception model, or another obs_mode")
         self.env = BaodingEnv(config, perception=perception)
+        if hasattr(perception, "bind_env"):  # a temporal perception keeps one state per env
+            perception.bind_env(self.env)
         self.on_step: Callable[[dict], None] | None = None
         self.cfg = to_dict(config)
         self.num_envs = config.num_envs

@@ -206,10 +206,13 @@ def align_balls(pred: Tensor, previous: Tensor) -> Tensor:
     """(B, 6) ball pairs, swapped where that puts each ball nearer its previous estimate.
 
     The two balls look alike to the skin; the frame's estimate may list them in either
-    order, the filter needs them in the order of its running estimate.
+    order, the filter needs them in the order of its running estimate. A tie (e.g. a previous
+    estimate with both balls at one point) keeps the order: rounding, which differs with the
+    batch's size, must not decide it.
     """
     swapped = pred[:, [3, 4, 5, 0, 1, 2]]
-    swap = ((swapped - previous) ** 2).sum(1) < ((pred - previous) ** 2).sum(1)
+    straight = ((pred - previous) ** 2).sum(1)
+    swap = ((swapped - previous) ** 2).sum(1) < straight - 1e-5 * (1.0 + straight)
     return torch.where(swap[:, None], swapped, pred)
 
 
