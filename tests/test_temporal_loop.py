@@ -112,3 +112,32 @@ def test_bad_inputs_are_named(tmp_path):
                 "model": {}, "dataset": {}, "epoch": 0}, temporal)
     with pytest.raises(CheckpointError, match="temporal perception checkpoint.*needs a single-frame one"):
         OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), pretrained=str(temporal)), skin)
+
+
+@pytest.mark.parametrize("temporal", [True, False])
+def test_evaluate_takes_sequence_checkpoints_as_perception(tmp_path, temporal):
+    """`tacgnn evaluate --perception` with a temporal checkpoint gives a filter per env; with a
+    --by-episode one the single-frame model itself, with its trained weights."""
+    from tacgnn.learning.evaluate import perception_from_file
+    from tacgnn.perception.checkpoint import CHECKPOINT_VERSION
+    from tacgnn.perception.models.temporal import TemporalModelConfig
+    from tacgnn.perception.sequence_checkpoint import KIND, build_sequence_model
+    from tacgnn.perception.sequence_train_config import SequenceTrainConfig
+
+    cfg = SequenceTrainConfig(model=TemporalModelConfig(frame=PerceptionModelConfig(name="mlp"), feature=8, hidden=8),
+                              temporal=temporal)
+    torch.manual_seed(1)
+    model = build_sequence_model(cfg)
+    path = tmp_path / "seq.pt"
+    torch.save({"format_version": CHECKPOINT_VERSION, "kind": KIND, "config": to_dict(cfg), "epoch": 0,
+                "model": model.state_dict(), "dataset": {"num_taxels": 653}}, path)
+    perception = perception_from_file(path, to_dict(BaodingConfig().skin))
+    assert isinstance(perception, TemporalOnlinePerception) == temporal
+    for name, tensor in model.state_dict().items():
+        assert torch.equal(perception.model.state_dict()[name], tensor), name
+    if not temporal:
+        readings, positions = torch.rand(2, 653), torch.rand(2, 653, 3)
+        with torch.no_grad():
+            expected = model(readings, positions).numpy() / 100.0
+        got = perception(readings.numpy(), positions.numpy() / 100.0)
+        assert np.allclose(got, expected, atol=1e-6)

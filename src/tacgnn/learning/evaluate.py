@@ -94,11 +94,16 @@ def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
     or the perception a 'perceived' policy checkpoint was trained with."""
     if not Path(path).is_file():
         raise FileNotFoundError(f"perception file not found: {path}")
-    if is_sequence_checkpoint(path):  # train-perception --temporal: a filter per env
-        _, stored, _ = load_sequence_model(path, temporal=True)
-        cfg = OnlinePerceptionConfig(model=stored.model.frame, pretrained=str(path), temporal=True,
-                                     window=1, buffer_size=32, batch_size=32, epochs=0)
-        return make_online_perception(cfg, skin)
+    if is_sequence_checkpoint(path):  # train-perception --temporal (a filter per env) or --by-episode
+        model, stored, _ = load_sequence_model(path)
+        if stored.temporal:
+            cfg = OnlinePerceptionConfig(model=stored.model.frame, pretrained=str(path), temporal=True,
+                                         window=1, buffer_size=32, batch_size=32, epochs=0)
+            return make_online_perception(cfg, skin)
+        frame = replace(stored.model.frame, out_dim=stored.model.out_dim)
+        single = OnlinePerception(OnlinePerceptionConfig(model=frame, buffer_size=32, batch_size=32, epochs=0), skin)
+        single.model.load_state_dict(model.state_dict())
+        return single
     try:
         payload = load_perception_checkpoint(path)
     except (ValueError, FileProblem):
