@@ -95,14 +95,14 @@ def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
     if not Path(path).is_file():
         raise FileNotFoundError(f"perception file not found: {path}")
     if is_sequence_checkpoint(path):  # train-perception --temporal (a filter per env) or --by-episode
-        model, stored, _ = load_sequence_model(path)
+        trained, stored, _ = load_sequence_model(path)
         if stored.temporal:
             cfg = OnlinePerceptionConfig(model=stored.model.frame, pretrained=str(path), temporal=True,
                                          window=1, buffer_size=32, batch_size=32, epochs=0)
             return make_online_perception(cfg, skin)
         frame = replace(stored.model.frame, out_dim=stored.model.out_dim)
         single = OnlinePerception(OnlinePerceptionConfig(model=frame, buffer_size=32, batch_size=32, epochs=0), skin)
-        single.model.load_state_dict(model.state_dict())
+        single.model.load_state_dict(trained.state_dict())
         return single
     try:
         payload = load_perception_checkpoint(path)
@@ -168,8 +168,9 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
                          f"the env's skin has {env_cfg.skin.num_taxels}")
     policy, _ = load_policy(checkpoint)
     env = BaodingEnv(env_cfg, perception=perception)
-    if hasattr(perception, "bind_env"):  # a temporal perception keeps one state per env
-        perception.bind_env(env)
+    bind = getattr(perception, "bind_env", None)
+    if bind is not None:  # a temporal perception keeps one state per env
+        bind(env)
     obs, _ = env.reset(seed=seed)
 
     quota = np.full(n, episodes // n)

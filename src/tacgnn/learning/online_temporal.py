@@ -69,7 +69,8 @@ class TemporalOnlinePerception(OnlinePerception):
         self.cfg = cfg
         self._rest = None
         torch.manual_seed(seed)
-        self.model = TemporalPerception(model_cfg)
+        self.filter = TemporalPerception(model_cfg)
+        self.model = self.filter  # type: ignore[assignment]  # the base's optimiser and checkpoints use `model`
         if pretrained is not None:
             self.model.load_state_dict(pretrained)
         self.optim = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -86,7 +87,7 @@ class TemporalOnlinePerception(OnlinePerception):
         self.size, self.head, self.steps_seen, self.updates = 0, 0, 0, 0
         self._gen = torch.Generator().manual_seed(seed)
         self.env = None
-        self.state = torch.zeros(0, self.model.state_dim)
+        self.state = torch.zeros(0, self.filter.state_dim)
         self.episode_of_env = torch.zeros(0, dtype=torch.long)
         self.train_cfg = SequenceTrainConfig(model=model_cfg, window=cfg.window, burn_in=cfg.burn_in,
                                              batch_size=max(1, round(cfg.batch_size / cfg.window)),
@@ -97,7 +98,7 @@ class TemporalOnlinePerception(OnlinePerception):
         """Keep one state per env of `env` (a `BaodingEnv`), all fresh; its step counters and last
         actions tell which envs a call is about and what they were commanded."""
         self.env = env
-        self.state = self.model.initial_state(env.num_envs).detach()
+        self.state = self.filter.initial_state(env.num_envs).detach()
         self.episode_of_env = torch.arange(env.num_envs, dtype=torch.long)
 
     @torch.inference_mode()
@@ -114,7 +115,7 @@ class TemporalOnlinePerception(OnlinePerception):
         fresh = np.flatnonzero(env.episode_steps == 0)
         if len(fresh) == rows:  # reset envs (all of them after env.reset()): start their state afresh
             ids, keep_state = fresh, False
-            self.state[ids] = self.model.initial_state(len(ids))
+            self.state[ids] = self.filter.initial_state(len(ids))
         elif rows == n:
             ids, keep_state = np.arange(n), True
         else:
@@ -122,7 +123,7 @@ class TemporalOnlinePerception(OnlinePerception):
                                "are at their episode's start: a temporal perception cannot tell which envs "
                                "these frames belong to")
         self.model.eval()
-        out, new_state = self.model.step(
+        out, new_state = self.filter.step(
             torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
             torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32)),
             torch.from_numpy(np.ascontiguousarray(joints, np.float32)),
@@ -185,7 +186,7 @@ class TemporalOnlinePerception(OnlinePerception):
             order = order.repeat(-(-per_pass * cfg.batch_size // len(order)))
             for b in range(per_pass):
                 batch = order[b * cfg.batch_size:(b + 1) * cfg.batch_size]
-                loss = window_loss(self.model, data, batch, cfg, self.objective)
+                loss = window_loss(self.filter, data, batch, cfg, self.objective)
                 backward_checked(self.optim, loss, f"in perception update {self.updates + 1} (in-loop training)")
                 self.optim.step()
         self.updates += 1
@@ -198,13 +199,13 @@ class TemporalOnlinePerception(OnlinePerception):
         chosen = episodes[torch.randperm(len(episodes), generator=torch.Generator().manual_seed(0))]
         keep = chosen[:max(1, int((torch.cumsum(counts[torch.searchsorted(episodes, chosen)], 0) <= 4096).sum()))]
         part = data.subset(torch.isin(data.episode, keep).nonzero().squeeze(1))
-        pred = sequence_predictions(self.model, self.train_cfg, part)
+        pred = sequence_predictions(self.filter, self.train_cfg, part)
         return self.objective.metrics(pred, part.frames.targets)["position_rmse_cm"]
 
     # --- checkpoints ---------------------------------------------------------------------
     def state_dict(self) -> dict:
         """As `OnlinePerception.state_dict`, plus the per-env filter state and episode counters."""
-        return {**super().state_dict(), "temporal_model": to_dict(self.model.cfg), "env_state": self.state.clone(),
+        return {**super().state_dict(), "temporal_model": to_dict(self.filter.cfg), "env_state": self.state.clone(),
                 "episode_of_env": self.episode_of_env.clone()}
 
     def load_state_dict(self, state: dict) -> None:
