@@ -1,10 +1,13 @@
 """The continuous Baoding task: turn as far as possible in 10 s; a fall ends the episode."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from tacgnn.config import ConfigError
-from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RewardConfig
+from tacgnn.envs.observation import canonical_ball_order
 from tacgnn.learning.evaluate import _turns
 
 
@@ -52,3 +55,79 @@ def test_turns_are_reported_with_an_interval():
     assert out["rotations_mean"] == 2.5 and out["rotations_max"] == 4.0
     lo, hi = out["rotations_ci95"]
     assert lo < 2.5 < hi
+
+
+def _swap_balls(env: BaodingEnv) -> None:
+    """Exchange the two balls' places (positions and velocities) in every env."""
+    q, v = env.ball_qpos_adr, env.ball_dof_adr
+    qpos, qvel = env.sim.qpos, env.sim.qvel
+    a, b = qpos[:, q[0]:q[0] + 7].copy(), qpos[:, q[1]:q[1] + 7].copy()
+    qpos[:, q[0]:q[0] + 7], qpos[:, q[1]:q[1] + 7] = b, a
+    a, b = qvel[:, v[0]:v[0] + 6].copy(), qvel[:, v[1]:v[1] + 6].copy()
+    qvel[:, v[0]:v[0] + 6], qvel[:, v[1]:v[1] + 6] = b, a
+    env.sim.forward(np.arange(env.num_envs))
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_canonical_order_does_not_depend_on_which_ball_is_which(direction):
+    env = BaodingEnv(BaodingConfig(num_envs=8, task="continuous", ball_order="canonical", direction=direction,
+                                   tactile=False))
+    env.reset(seed=3)
+    before = env._observe(slice(None), None, None)
+    _swap_balls(env)
+    after = env._observe(slice(None), None, None)
+    np.testing.assert_array_equal(after, before)
+    np.testing.assert_array_equal(env.groundtruth_obs(), before)  # the critic sees the same order
+
+
+def test_default_order_keeps_ball_zero_first():
+    env = BaodingEnv(BaodingConfig(num_envs=4, task="continuous", tactile=False))
+    obs, _ = env.reset(seed=3)
+    _swap_balls(env)
+    swapped = env._observe(slice(None), None, None)
+    np.testing.assert_allclose(swapped[:, 32:35], obs[:, 35:38], atol=1e-6)
+    np.testing.assert_allclose(swapped[:, 32:38], env.ball_positions().reshape(4, 6), atol=1e-6)
+
+
+def test_canonical_order_puts_the_pair_in_one_half_turn():
+    rng = np.random.default_rng(0)
+    balls = rng.normal(size=(500, 6))
+    plane = np.eye(3)[:, :2]
+    for direction in (1, -1):
+        ordered = canonical_ball_order(balls, plane, 0.3, direction)
+        v = ordered[:, 3:5] - ordered[:, 0:2]
+        progress = (direction * (np.arctan2(v[:, 1], v[:, 0]) - 0.3)) % (2 * np.pi)
+        assert (progress < np.pi).all()
+        np.testing.assert_array_equal(canonical_ball_order(balls[:, [3, 4, 5, 0, 1, 2]], plane, 0.3, direction),
+                                      ordered)
+        assert {tuple(r) for r in np.sort(ordered.reshape(-1, 2, 3), axis=1).reshape(-1, 6)} == \
+            {tuple(r) for r in np.sort(balls.reshape(-1, 2, 3), axis=1).reshape(-1, 6)}
+
+
+def test_alive_and_capped_rotation_terms():
+    cfg = BaodingConfig(num_envs=3, task="continuous", tactile=False,
+                        reward=RewardConfig(alive=0.2, rotation_cap_deg=4.0))
+    env = BaodingEnv(cfg)
+    d_angle = np.deg2rad(np.array([2.0, 10.0, -10.0]))
+    fall = np.array([False, False, True])
+    none = np.zeros(3, bool)
+    terms = env._reward_terms(d_angle, np.zeros((3, 16)), none, fall, none, np.zeros((3, 8)))
+    np.testing.assert_allclose(terms["alive"], [0.2, 0.2, 0.0])
+    np.testing.assert_allclose(terms["rotation"], [1.0, 2.0, -5.0])  # 0.5 per degree, forward capped at 4
+    assert terms["fall"][2] == -100.0
+    plain = BaodingEnv(replace(cfg, reward=RewardConfig()))._reward_terms(
+        d_angle, np.zeros((3, 16)), none, fall, none, np.zeros((3, 8)))
+    np.testing.assert_allclose(plain["rotation"], [1.0, 5.0, -5.0])
+    assert not plain["alive"].any()
+
+
+@pytest.mark.parametrize("change", [{"ball_order": "sorted"}, {"reward": {"alive": -1.0}},
+                                    {"reward": {"rotation_cap_deg": -2.0}}])
+def test_bad_order_and_reward_settings_are_named(change):
+    key = next(iter(change))
+    value = change[key]
+    with pytest.raises(ConfigError, match=key if key == "ball_order" else next(iter(value))):
+        if key == "reward":
+            BaodingConfig(reward=RewardConfig(**value))
+        else:
+            BaodingConfig(**change)

@@ -11,9 +11,13 @@ Rules follow the TacGNN paper and its authors' code (see docs/environment.md):
 * Action (16): absolute joint targets, [-1, 1] mapped onto each joint's range.
 * Angle: of the vector from ball 0 to ball 1 in the palm plane, unwrapped, signed by
   `direction`. Reward = 0.5 x (angle change, deg) - 0.0002 |a|^2, +250 on success,
-  -100 when a ball falls, -50 on timeout (named terms in ``info["reward_terms"]``).
+  -100 when a ball falls, -50 on timeout (named terms in ``info["reward_terms"]``; an
+  optional per-step alive bonus and a cap on the rewarded turn per step, both off by default).
 * Tasks: simple (succeed at `success_angle_deg`), middle (plus a random-direction
-  force ~ N(0, 0.1) N on each ball every 10 steps), hard (middle, then hold 5 steps).
+  force ~ N(0, 0.1) N on each ball every 10 steps), hard (middle, then hold 5 steps),
+  hold (simple, then 1 s in the hand), continuous (turn for 10 s; with ``ball_order:
+  canonical`` the balls are shown in an order that ignores which is which, so that the
+  state after each half turn looks like the start).
 
 Ball positions, skin readings and taxel positions are all taken at one instant, the
 start of the last physics substep of the control step, so that a perception model's
@@ -55,6 +59,10 @@ _FOUND_AND_FORCE = ((1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND))
                     | (1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)))
 _STRONGEST_FIRST = 2  # the contact sensor's 'maxforce' reduction
 SPAWN_TRIES = 20
+ORDER_WINDOW_START_DEG = -20.0
+"""'canonical' ball order: the half turn shown starts this far (in the task direction) from the
+spawn points' ball-to-ball angle, so that the spawn noise (up to about 20 deg) rarely puts a
+start on the other side of the cut and the start looks as it did in the 180-degree tasks."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +79,17 @@ class RewardConfig:
     without it the policies squeeze the balls with 15-35 N, far beyond what holding them needs)."""
     squeeze_free_force: float = 5.0
     """Contact force (N) a ball may feel without penalty: 30 times its weight."""
+    alive: float = 0.0
+    """Per step that ends with both balls in the hand (not in the paper; for the continuous
+    task, where staying in the hand is worth more than one fast half turn)."""
+    rotation_cap_deg: float = 0.0
+    """Degrees per step above which turning earns no more rotation reward; 0: no cap (not in
+    the paper: a capped rate rewards a steady turn over a flick)."""
+
+    def __post_init__(self) -> None:
+        check(self.alive >= 0, "reward.alive", f"must be >= 0, got {self.alive}")
+        check(self.rotation_cap_deg >= 0, "reward.rotation_cap_deg",
+              f"must be >= 0 (0: no cap), got {self.rotation_cap_deg}")
 
 
 @dataclass(frozen=True)
@@ -113,6 +132,11 @@ class BaodingConfig:
     """Length of a continuous-task episode (s): a whole number of control steps."""
     continuous_disturbances: bool = False
     """Continuous task: the Middle task's kicks on the balls."""
+    ball_order: Literal["as_simulated", "canonical"] = "as_simulated"
+    """Order of the two balls in the observation. 'as_simulated': ball 0 first (the paper's).
+    'canonical': the order that does not depend on which ball is which (see
+    `observation.canonical_ball_order`), so that the state after a half turn looks like the
+    start and a continuous turn is one skill repeated; the critic's ground truth follows it."""
     ball_radius: float = 0.02625
     ball_mass: float = 0.15
     ball_friction: float = 1.0
@@ -169,6 +193,8 @@ class BaodingConfig:
         check(len(self.initial_joint_pos) == NUM_JOINTS, "initial_joint_pos", "needs 16 values")
         check(self.success_angle_deg > 0, "success_angle_deg", "must be positive")
         check(self.direction in (1, -1), "direction", "must be +1 or -1")
+        check(self.ball_order in ("as_simulated", "canonical"), "ball_order",
+              f"must be 'as_simulated' or 'canonical', got {self.ball_order!r}")
         check(self.disturbance_interval >= 1, "disturbance_interval", "must be >= 1")
         check(self.disturbance_std >= 0, "disturbance_std", "must be >= 0")
         check(self.hold_steps >= 0, "hold_steps", "must be >= 0")
@@ -217,6 +243,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self._scratch = mujoco.MjData(m)  # checks spawn points for overlaps
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
+        spawn_vec = (np.subtract(*cfg.spawn_offsets[::-1])) @ self.palm_axes
+        self.spawn_angle = float(np.arctan2(spawn_vec[2], spawn_vec[1]))  # of the ball-to-ball vector at reset
         self._spawn = np.array(cfg.spawn_offsets, dtype=np.float64)  # (2, 3) ball centres at reset
         self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
         start = m.qpos0.copy()
@@ -270,13 +298,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         mode = self.config.obs_mode
         balls = self.ball_positions()[ids].reshape(-1, 6)
         if mode == "groundtruth":
-            return balls
+            return self._ordered(balls)
         if mode == "no_perception":
             return np.zeros_like(balls)
         if mode == "finger_torque":
             return self.sim.actuator_force[ids]
         if mode in ABLATION_NOISE:
-            return balls + self._rng.uniform(-1, 1, balls.shape) * ABLATION_NOISE[mode]
+            return self._ordered(balls + self._rng.uniform(-1, 1, balls.shape) * ABLATION_NOISE[mode])
         if mode == "perceived":
             if self.perception is None:
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
@@ -285,8 +313,16 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             assert tactile is not None and taxel_pos is not None  # the config turns the skin on for 'perceived'
             pred = observation.perceive_balls(self.perception, tactile, taxel_pos, joints, previous)
             self.perceived_balls[ids] = pred
-            return pred
+            return self._ordered(pred)
         raise AssertionError(mode)
+
+    def _ordered(self, balls: np.ndarray) -> np.ndarray:
+        """(N, 6) ball positions in the config's `ball_order`."""
+        if self.config.ball_order == "as_simulated":
+            return balls
+        d = self.config.direction
+        start = self.spawn_angle + d * np.deg2rad(ORDER_WINDOW_START_DEG)
+        return observation.canonical_ball_order(balls, self.palm_axes[:, 1:3], start, d)
 
     def _observe(self, ids: EnvIds, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
         q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
@@ -300,7 +336,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def groundtruth_obs(self) -> np.ndarray:
         """(N, 54) the 'groundtruth' observation of the current state, whatever the obs mode:
         what a privileged critic reads during training (the actor gets the env's own obs)."""
-        balls = self.ball_positions().reshape(self.num_envs, 6)
+        balls = self._ordered(self.ball_positions().reshape(self.num_envs, 6))
         return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
                                     self.joint_high)
 
@@ -580,13 +616,19 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def _reward_terms(self, d_angle, actions, success, fall, timeout, ball_forces) -> dict[str, np.ndarray]:
         w = self.config.reward
         return {
-            "rotation": w.rotation * np.rad2deg(d_angle),
+            "rotation": w.rotation * _capped(np.rad2deg(d_angle), w.rotation_cap_deg),
             "action": w.action * np.sum(actions**2, axis=1),
             "success": w.success * success,
             "fall": w.fall * fall,
             "timeout": (0.0 if self.config.task == "continuous" else w.timeout) * timeout,  # 10 s is the goal there
             "squeeze": w.squeeze * np.maximum(ball_forces - w.squeeze_free_force, 0.0).sum(axis=1),
+            "alive": w.alive * ~fall,
         }
+
+
+def _capped(degrees: np.ndarray, cap: float) -> np.ndarray:
+    """Per-step turn (deg) counted at most `cap` forward (0: no cap); turning back is never capped."""
+    return np.minimum(degrees, cap) if cap > 0 else degrees
 
 
 class BaodingSingleEnv(gym.Env):

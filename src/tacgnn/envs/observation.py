@@ -85,3 +85,20 @@ def track_ball_identities(pred: np.ndarray, previous: np.ndarray) -> np.ndarray:
     swapped = pred[:, [3, 4, 5, 0, 1, 2]]
     swap = ((swapped - previous) ** 2).sum(1) < ((pred - previous) ** 2).sum(1)
     return np.where(swap[:, None], swapped, pred)
+
+
+def canonical_ball_order(balls: np.ndarray, plane: np.ndarray, reference: float, direction: int) -> np.ndarray:
+    """(N, 6) ball pairs in the order that does not depend on which ball is which.
+
+    The balls look alike, and the pair turned by 180 degrees is the start with the balls
+    swapped: a policy that sees them in a fixed order sees a state it has never met after
+    each half turn, so a 180-degree skill cannot repeat. Here the pair is ordered so that the
+    angle of the vector from the first ball to the second, in the plane spanned by the
+    columns of `plane` (3, 2) and counted from `reference` (rad) in `direction` (+1/-1),
+    lies in [0, 180) degrees: the pair after each half turn looks like the start again.
+    Swapping the two balls of the input leaves the output unchanged.
+    """
+    v = (balls[:, 3:6] - balls[:, 0:3]) @ plane
+    progress = (direction * (np.arctan2(v[:, 1], v[:, 0]) - reference)) % (2 * np.pi)
+    swap = progress >= np.pi
+    return np.where(swap[:, None], balls[:, [3, 4, 5, 0, 1, 2]], balls)
