@@ -6,7 +6,7 @@ per-frame encoder, 64 features out instead of 6) and steps its filter (GRU, gate
 the joint angles, the previous actions and its state. Target: temporal <= 2x single-frame.
 The MLP and its temporal version are timed beside them.
 
-Frames: 256 real skin frames of a sequence dataset (``--dataset``, e.g. data/baoding_seq
+Frames: 256 real skin frames spread over a sequence dataset (``--dataset``, e.g. data/baoding_seq
 made by ``tacgnn make-dataset baoding --keep-every 1``), else synthetic ones (two blobs of
 ~30 taxels on a random taxel cloud). Untrained weights: the cost does not depend on them.
 1 torch thread; several rounds, the best is the headline, the median beside it (the 2
@@ -23,6 +23,7 @@ import os
 import statistics
 import time
 
+import numpy as np
 import torch
 
 from tacgnn.perception.models.build import build_model
@@ -46,7 +47,9 @@ def dataset_frames(root: str) -> tuple[torch.Tensor, torch.Tensor]:
     from tacgnn.datasets.store import load
 
     data = load(root, ["tactile", "taxel_pos"])
-    return torch.from_numpy(data["tactile"][:B]), torch.from_numpy(data["taxel_pos"][:B] * 100.0)
+    # spread over the whole dataset: its first rows are the first steps of a few episodes (balls still dropping)
+    rows = np.linspace(0, len(data["tactile"]) - 1, B).round().astype(np.int64)
+    return torch.from_numpy(data["tactile"][rows]), torch.from_numpy(data["taxel_pos"][rows] * 100.0)
 
 
 def time_it(fn, rounds: int, steps: int) -> tuple[float, float]:
@@ -82,9 +85,9 @@ def main() -> None:
         temporal = TemporalPerception(cfg).eval()
         state = temporal.initial_state(B)
         with torch.inference_mode():
-            results[name] = time_it(lambda: single(readings, positions), args.rounds, args.steps)
-            results[f"{name} temporal"] = time_it(lambda: temporal.step(readings, positions, joints, actions, state),
-                                                 args.rounds, args.steps)
+            results[name] = time_it(lambda m=single: m(readings, positions), args.rounds, args.steps)
+            results[f"{name} temporal"] = time_it(
+                lambda m=temporal, s=state: m.step(readings, positions, joints, actions, s), args.rounds, args.steps)
         base, temp = results[name], results[f"{name} temporal"]
         print(f"{name:>7}: single-frame {base[0]:.2f} ms (median {base[1]:.2f}), temporal {temp[0]:.2f} ms "
               f"(median {temp[1]:.2f}) per env step of {B} envs: ratio {temp[0] / base[0]:.2f}x "

@@ -43,6 +43,9 @@ def test_a_run_resumed_with_more_epochs_equals_an_uninterrupted_one(tmp_path, da
     assert metrics["position_rmse_cm"] == pytest.approx(full["test/position_rmse_cm"])
     curve = error_by_steps_since_touch(tmp_path / "full" / "checkpoint.pt", dataset, [0, 1, 3])
     assert curve["count"][0] > 0 and curve["count"][1] > 0 and len(curve["rmse_cm"]) == 3
+    # the bins split the evaluated balls: their errors pool back into the overall RMSE
+    pooled = sum(c * r ** 2 for c, r in zip(curve["count"], curve["rmse_cm"]) if c) / sum(curve["count"])
+    assert pooled ** 0.5 == pytest.approx(metrics["position_rmse_cm"], rel=1e-4)
 
 
 def test_kinds_of_checkpoint_are_not_mixed(tmp_path, dataset):

@@ -76,7 +76,11 @@ def _rmse(se: Tensor) -> float:
 
 def sequence_metrics(model: nn.Module, cfg: SequenceTrainConfig, data: SequenceData) -> dict[str, float]:
     """Position RMSE (cm) over the frames from ``cfg.eval_from_step`` on: all, touched and untouched balls."""
-    pred = sequence_predictions(model, cfg, data)
+    return prediction_metrics(sequence_predictions(model, cfg, data), cfg, data)
+
+
+def prediction_metrics(pred: Tensor, cfg: SequenceTrainConfig, data: SequenceData) -> dict[str, float]:
+    """The metrics of :func:`sequence_metrics` from predictions `pred` (N, 6) of `data`'s frames."""
     keep = data.step >= cfg.eval_from_step
     se, touch, _ = matched_ball_errors(pred, data, cfg.match_balls)
     se, touch = se[keep], touch[keep]
@@ -104,16 +108,21 @@ def evaluate_sequence(checkpoint: str | Path, dataset: str | Path, whole: bool =
 
 def error_by_steps_since_touch(checkpoint: str | Path, dataset: str | Path, bins: list[int],
                                whole: bool = False) -> dict[str, list[int] | list[float]]:
-    """Ball position RMSE (cm) by steps since the ball last touched the skin.
+    """Ball position RMSE (cm) by steps since the ball last touched the skin (see :func:`since_touch_curve`)."""
+    model, cfg, _ = load_sequence_model(checkpoint)
+    torch.set_num_threads(cfg.threads)
+    data = load_sequences(dataset) if whole else test_split(cfg, dataset)
+    return since_touch_curve(sequence_predictions(model, cfg, data), cfg, data, bins)
+
+
+def since_touch_curve(pred: Tensor, cfg: SequenceTrainConfig, data: SequenceData,
+                      bins: list[int]) -> dict[str, list[int] | list[float]]:
+    """RMSE (cm) of predictions `pred` (N, 6) by steps since the ball last touched the skin.
 
     `bins` are the lower edges (e.g. [0, 1, 2, 4, 8, 16, 32]); bin i holds balls with
     bins[i] <= steps < bins[i + 1] (the last bin is open). Returns the edges, RMSE and count
     per bin, over frames from the run's ``eval_from_step`` on.
     """
-    model, cfg, _ = load_sequence_model(checkpoint)
-    torch.set_num_threads(cfg.threads)
-    data = load_sequences(dataset) if whole else test_split(cfg, dataset)
-    pred = sequence_predictions(model, cfg, data)
     se, _, since = matched_ball_errors(pred, data, cfg.match_balls)
     keep = data.step >= cfg.eval_from_step
     se, since = se[keep].reshape(-1), since[keep].reshape(-1)

@@ -1,0 +1,72 @@
+"""Does the perception shipped inside the blind policy generalise? It against an offline TacGNN-32 on fresh frames.
+
+The blind policy's TacGNN learns in the loop from the policy's own recent frames; an
+offline TacGNN-32 (``tacgnn train-perception``, Table II) learns from 50,000 frames of the
+ground-truth policy. Both read frames neither has seen: rollouts of the ground-truth policy
+with another seed. Writes ``docs/perception_generalisation.json`` (overall, touched and
+untouched RMSE in cm, the ratio shipped / offline, provenance).
+
+The fresh frames (3,000, the teacher dataset's settings, seed 7)::
+
+    tacgnn make-dataset baoding --out data/baoding_fresh_s7 --samples 3000 --shard-size 3000 \\
+        --keep-every 2 --envs 64 --settle-steps 0 --policy runs/gt_hold_s0/model_000300.pt --seed 7
+    .venv/bin/python experiments/perception_generalisation.py --dataset data/baoding_fresh_s7 \\
+        --offline runs/table2/tacgnn-32_s0/checkpoint.pt
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from tacgnn.datasets.store import read_manifest
+from tacgnn.learning.policy import SHIPPED_POLICY, load_perception
+from tacgnn.perception.checkpoint import load_model
+from tacgnn.perception.data import load_tactile
+from tacgnn.perception.evaluation import ball_visibility_errors, predict
+from tacgnn.perception.objectives import Objective
+from tacgnn.provenance import provenance
+
+
+def errors(model: torch.nn.Module, data) -> dict[str, float]:
+    pred = predict(model, data)  # type: ignore[arg-type]
+    out = {"position_rmse_cm": Objective("baoding", True).metrics(pred, data.targets)["position_rmse_cm"]}
+    vis = ball_visibility_errors(pred, data, True)
+    return {**out, "touched_rmse_cm": vis["seen_rmse_cm"], "untouched_rmse_cm": vis["blind_rmse_cm"],
+            "untouched_fraction": vis["blind_fraction"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dataset", required=True, help="fresh frames of the ground-truth policy")
+    parser.add_argument("--offline", required=True, help="an offline TacGNN-32 checkpoint (train-perception)")
+    parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="the blind policy (default: the shipped one)")
+    parser.add_argument("--out", default="docs/perception_generalisation.json")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    data = load_tactile(args.dataset, "baoding")
+    shipped = load_perception(args.policy)
+    if shipped is None:
+        raise SystemExit(f"{args.policy}: holds no perception (not a blind policy)")
+    offline, _, _ = load_model(args.offline)
+    rows = {"shipped": errors(shipped.model, data), "offline": errors(offline, data)}
+    ratio = rows["shipped"]["position_rmse_cm"] / rows["offline"]["position_rmse_cm"]
+    for name, r in rows.items():
+        print(f"{name:>8}: {r['position_rmse_cm']:.3f} cm (touched {r['touched_rmse_cm']:.3f}, untouched "
+              f"{r['untouched_rmse_cm']:.3f}, {r['untouched_fraction']:.1%} untouched)")
+    print(f"shipped / offline: {ratio:.2f}x (target <= 1.2x)")
+    meta = read_manifest(args.dataset)["metadata"]
+    result = {"dataset": args.dataset, "frames": len(data), "dataset_seed": meta.get("seed"),
+              "controller": meta.get("controller"), **rows, "ratio_shipped_over_offline": ratio,
+              "target_ratio": 1.2,
+              "provenance": provenance({"policy": args.policy, "offline": args.offline}, meta.get("seed"),
+                                       {"dataset": args.dataset})}
+    Path(args.out).write_text(json.dumps(result, indent=1))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

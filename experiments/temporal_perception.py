@@ -1,0 +1,136 @@
+"""Table II rows of the temporal perception models, touched / untouched, and the blind-area plot.
+
+Reads trained sequence checkpoints (``tacgnn train-perception --temporal`` / ``--by-episode``),
+evaluates each on its test episodes (split by episode; every model reads each episode from
+its first frame; errors count frames from step 6 on, as the Table II datasets skip the first
+5), and writes:
+
+* ``docs/temporal_perception.json``: per run, overall / touched / untouched position RMSE (cm),
+  the untouched share, and the RMSE by steps since the ball last touched a taxel;
+* ``docs/fig_blind_area.png``: RMSE against steps since the ball last touched a taxel.
+
+A ball is touched when an activated taxel lies within 3 cm of its centre (radius 2.625 cm).
+
+The data and runs behind docs/fig_blind_area.png (ground-truth hold policy, 16 envs, every
+frame kept, seed 1; 160,000 frames, 1,899 episodes, split 80/20 by episode), each command
+niced on the shared 2-core machine; every model gets the same epochs over the same training
+frames (an epoch puts every training frame into the loss once)::
+
+    tacgnn make-dataset baoding --out data/baoding_seq2 --samples 160000 --shard-size 10000 --seed 1 \\
+        --keep-every 1 --envs 16 --settle-steps 0 --policy runs/gt_hold_s0/model_000300.pt --set task=hold
+    tacgnn train-perception --dataset data/baoding_seq2 --run runs/temporal2/tacgnn32_temporal \\
+        --temporal --model tacgnn --channels 32 --epochs 20 --window 32 --burn-in 200 \\
+        --set batch_size=16 lr_decay=0.85
+    tacgnn train-perception --dataset data/baoding_seq2 --run runs/temporal2/tacgnn32_single \\
+        --by-episode --model tacgnn --channels 32 --epochs 20 --set batch_size=256 lr_decay=0.85
+    tacgnn train-perception --dataset data/baoding_seq2 --run runs/temporal2/mlp_temporal \\
+        --temporal --model mlp --epochs 20 --window 32 --burn-in 200 --set batch_size=16 lr_decay=0.85
+    tacgnn train-perception --dataset data/baoding_seq2 --run runs/temporal2/mlp_single \\
+        --by-episode --model mlp --epochs 20 --set batch_size=256 lr_decay=0.85
+    .venv/bin/python experiments/temporal_perception.py --dataset data/baoding_seq2 \\
+        --runs runs/temporal2/tacgnn32_temporal runs/temporal2/tacgnn32_single \\
+               runs/temporal2/mlp_temporal runs/temporal2/mlp_single
+
+(docs/temporal_perception.json records each run's config, training time and provenance.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import torch
+
+from tacgnn.config import to_dict
+from tacgnn.perception.sequence_checkpoint import load_sequence_checkpoint, load_sequence_model
+from tacgnn.perception.sequence_evaluation import prediction_metrics, sequence_predictions, since_touch_curve
+from tacgnn.perception.sequences import SequenceData, load_sequences, split_by_episode
+from tacgnn.provenance import provenance
+
+BINS = [0, 1, 2, 3, 4, 6, 8, 12]
+PAPER_TACGNN32_TEST_CM = 0.096
+
+
+def label(cfg) -> str:
+    name = {"tacgnn": f"TacGNN-{cfg.model.frame.channels}", "mlp": "MLP", "cnn": "CNN"}[cfg.model.frame.name]
+    return f"{name} temporal" if cfg.temporal else f"{name} single-frame"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dataset", required=True)
+    parser.add_argument("--runs", nargs="+", required=True, help="run folders holding checkpoint.pt")
+    parser.add_argument("--train-error", action="store_true", help="also the error on the training episodes")
+    parser.add_argument("--out", default="docs/temporal_perception.json")
+    parser.add_argument("--figure", default="docs/fig_blind_area.png")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+
+    loaded: dict[int, SequenceData] = {}  # by max_frames: the dataset is read once
+    results = {}
+    for run in args.runs:
+        ckpt = Path(run) / "checkpoint.pt"
+        model, cfg, _ = load_sequence_model(ckpt)
+        history = load_sequence_checkpoint(ckpt)["history"]
+        if cfg.max_frames not in loaded:
+            loaded[cfg.max_frames] = load_sequences(args.dataset, cfg.max_frames)
+        train_set, test_set = split_by_episode(loaded[cfg.max_frames], cfg.train_fraction, cfg.seed)
+        pred = sequence_predictions(model, cfg, test_set)
+        metrics = prediction_metrics(pred, cfg, test_set)
+        name = label(cfg)
+        if name in results:
+            name = f"{name} ({Path(run).name})"
+        results[name] = {
+            "run": str(run), "epochs": cfg.epochs, "train_seconds": sum(h["seconds"] for h in history),
+            "train_frames": len(train_set), "train_episodes": len(train_set.episodes()),
+            "test_frames": len(test_set), "test_episodes": len(test_set.episodes()), **metrics,
+            "by_steps_since_touch": since_touch_curve(pred, cfg, test_set, BINS),
+            "history_test_rmse_cm": [h["test/position_rmse_cm"] for h in history],
+        }
+        if args.train_error:
+            results[name]["train_position_rmse_cm"] = prediction_metrics(
+                sequence_predictions(model, cfg, train_set), cfg, train_set)["position_rmse_cm"]
+        results[name]["config"] = to_dict(cfg)
+        results[name]["provenance"] = provenance({"perception": ckpt}, cfg.seed, {"dataset": args.dataset})
+        print(f"{name:>24}: overall {metrics['position_rmse_cm']:.3f} cm, touched "
+              f"{metrics['touched_rmse_cm']:.3f}, untouched {metrics['untouched_rmse_cm']:.3f} "
+              f"({metrics['untouched_fraction']:.1%} of balls untouched)", flush=True)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps({"dataset": args.dataset, "touched_within_cm": 3.0,
+                                          "paper_tacgnn32_test_cm": PAPER_TACGNN32_TEST_CM, "runs": results},
+                                         indent=1))
+    print(f"wrote {args.out}")
+    plot(results, args.figure)
+    print(f"wrote {args.figure}")
+
+
+def plot(results: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for name, r in results.items():
+        curve = r["by_steps_since_touch"]
+        ticks = [str(b) if hi is None or hi - b == 1 else f"{b}-{hi - 1}"
+                 for b, hi in zip(curve["bins"], curve["bins"][1:] + [None])]
+        ticks[-1] = f"{curve['bins'][-1]}+"
+        style = "-" if "temporal" in name else "--"
+        ax.plot(range(len(ticks)), curve["rmse_cm"], style, marker="o", ms=3, label=name)
+    counts = next(iter(results.values()))["by_steps_since_touch"]["count"]
+    ax.set_xticks(range(len(ticks)))
+    ax.set_xticklabels([f"{t}\n({c})" for t, c in zip(ticks, counts)], fontsize=7)
+    ax.axhline(PAPER_TACGNN32_TEST_CM, color="grey", lw=0.8, ls=":", label="paper TacGNN-32 (0.096 cm)")
+    ax.set_xlabel("steps since the ball last touched a taxel (balls in bin)")
+    ax.set_ylabel("ball position RMSE (cm)")
+    ax.set_title("Blind area: error against time without contact (test episodes)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+
+
+if __name__ == "__main__":
+    main()
