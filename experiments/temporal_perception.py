@@ -6,7 +6,8 @@ its first frame; errors count frames from step 6 on, as the Table II datasets sk
 5), and writes:
 
 * ``docs/temporal_perception.json``: per run, overall / touched / untouched position RMSE (cm),
-  the untouched share, and the RMSE by steps since the ball last touched a taxel;
+  the untouched share, the RMSE by steps since the ball last touched a taxel, and the RMSE
+  with a whole skin patch reading 0 (``--lose-patch``, the palm by default);
 * ``docs/fig_blind_area.png``: RMSE against steps since the ball last touched a taxel.
 
 A ball is touched when an activated taxel lies within 3 cm of its centre (radius 2.625 cm).
@@ -42,9 +43,17 @@ from pathlib import Path
 
 import torch
 
-from tacgnn.config import to_dict
+from tacgnn.config import from_dict, to_dict
+from tacgnn.datasets.store import read_manifest
+from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.perception.evaluation import patch_taxels, without_taxels
 from tacgnn.perception.sequence_checkpoint import load_sequence_checkpoint, load_sequence_model
-from tacgnn.perception.sequence_evaluation import prediction_metrics, sequence_predictions, since_touch_curve
+from tacgnn.perception.sequence_evaluation import (
+    matched_ball_errors,
+    prediction_metrics,
+    sequence_predictions,
+    since_touch_curve,
+)
 from tacgnn.perception.sequences import SequenceData, load_sequences, split_by_episode
 from tacgnn.provenance import provenance
 
@@ -57,11 +66,45 @@ def label(cfg) -> str:
     return f"{name} temporal" if cfg.temporal else f"{name} single-frame"
 
 
+def touched_breakdown(pred: torch.Tensor, cfg, data: SequenceData, skin: dict, top: int = 8) -> dict:
+    """Where the touched balls' error comes from: its spread, and the RMSE by the skin patches
+    that touch the ball (activated taxels within 3 cm of its centre), the most common sets first."""
+    se, touch, _ = matched_ball_errors(pred, data, cfg.match_balls)
+    layout = from_dict(SkinLayout, skin)
+    names = [p.name for p in layout.patches]
+    patch = torch.from_numpy(layout.patch_index())
+    t = data.frames.targets
+    swapped = t[:, [3, 4, 5, 0, 1, 2]]
+    if cfg.match_balls:  # the ball order matched_ball_errors uses
+        t = torch.where((((pred - swapped) ** 2).sum(1) < ((pred - t) ** 2).sum(1))[:, None], swapped, t)
+    active = data.frames.readings > 0
+    codes = []
+    for b in range(2):  # bit p set: patch p has an activated taxel within 3 cm of ball b
+        near = ((data.frames.positions - t[:, None, 3 * b:3 * b + 3]).norm(dim=-1) < 3.0) & active
+        hit = torch.stack([near[:, patch == p].any(1) for p in range(len(names))], 1)
+        codes.append((hit.long() << torch.arange(len(names))).sum(1))
+    code = torch.stack(codes, 1)
+    keep = (data.step >= cfg.eval_from_step)[:, None] & touch
+    se, code = se[keep], code[keep]
+    ordered = se.sort(descending=True).values
+    tail = max(1, len(ordered) // 20)
+    groups = []
+    values, counts = code.unique(return_counts=True)
+    for v in values[counts.argsort(descending=True)][:top].tolist():
+        sel = code == v
+        groups.append({"patches": [n for i, n in enumerate(names) if v >> i & 1], "share": float(sel.float().mean()),
+                       "rmse_cm": float(se[sel].mean().sqrt()),
+                       "share_of_squared_error": float(se[sel].sum() / se.sum())})
+    return {"median_cm": float(ordered.median().sqrt()), "p95_cm": float(ordered[tail - 1].sqrt()),
+            "top5pct_share_of_squared_error": float(ordered[:tail].sum() / ordered.sum()), "by_patches": groups}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", required=True)
     parser.add_argument("--runs", nargs="+", required=True, help="run folders holding checkpoint.pt")
     parser.add_argument("--train-error", action="store_true", help="also the error on the training episodes")
+    parser.add_argument("--lose-patch", default="palm", help="also the error with this skin patch reading 0 ('' none)")
     parser.add_argument("--out", default="docs/temporal_perception.json")
     parser.add_argument("--figure", default="docs/fig_blind_area.png")
     args = parser.parse_args()
@@ -88,6 +131,15 @@ def main() -> None:
             "by_steps_since_touch": since_touch_curve(pred, cfg, test_set, BINS),
             "history_test_rmse_cm": [h["test/position_rmse_cm"] for h in history],
         }
+        results[name]["touched_breakdown"] = touched_breakdown(pred, cfg, test_set,
+                                                               read_manifest(args.dataset)["metadata"]["skin"])
+        if args.lose_patch:
+            taxels = patch_taxels(read_manifest(args.dataset)["metadata"]["skin"], args.lose_patch)
+            frames = without_taxels(test_set.frames, taxels)
+            lost = SequenceData(frames, test_set.actions, test_set.episode, test_set.step)
+            lost_rmse = prediction_metrics(sequence_predictions(model, cfg, lost), cfg, lost)["position_rmse_cm"]
+            results[name][f"{args.lose_patch}_lost_rmse_cm"] = lost_rmse
+            results[name][f"{args.lose_patch}_lost_rmse_ratio"] = lost_rmse / metrics["position_rmse_cm"]
         if args.train_error:
             results[name]["train_position_rmse_cm"] = prediction_metrics(
                 sequence_predictions(model, cfg, train_set), cfg, train_set)["position_rmse_cm"]
@@ -95,7 +147,9 @@ def main() -> None:
         results[name]["provenance"] = provenance({"perception": ckpt}, cfg.seed, {"dataset": args.dataset})
         print(f"{name:>24}: overall {metrics['position_rmse_cm']:.3f} cm, touched "
               f"{metrics['touched_rmse_cm']:.3f}, untouched {metrics['untouched_rmse_cm']:.3f} "
-              f"({metrics['untouched_fraction']:.1%} of balls untouched)", flush=True)
+              f"({metrics['untouched_fraction']:.1%} of balls untouched)"
+              + (f", {args.lose_patch} lost x{results[name][args.lose_patch + '_lost_rmse_ratio']:.2f}"
+                 if args.lose_patch else ""), flush=True)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps({"dataset": args.dataset, "touched_within_cm": 3.0,
                                           "paper_tacgnn32_test_cm": PAPER_TACGNN32_TEST_CM, "runs": results},
