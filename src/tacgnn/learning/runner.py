@@ -15,6 +15,11 @@ One iteration, as `Runner.learn` runs it:
               trains on the frames it recorded during the rollouts
     save      a checkpoint after the first iteration, every save_interval and the last
 
+Over several processes (`tacgnn.learning.distributed`, launched by torchrun) every rank runs
+this loop on its own envs; PPO's update averages the gradients of all ranks, so the networks
+stay the same everywhere, and rank 0 writes the checkpoints, which hold every rank's env
+state and random streams so that the run resumes exactly.
+
 Iterations are counted from 1 as completed updates: ``model_000004.pt`` holds the state
 after 4 updates, and the perception updates after every iteration that is a multiple of
 `perception_every`, whatever iteration the run started or resumed at, so that a resumed
@@ -29,12 +34,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from rsl_rl.env import VecEnv
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.logger import Logger
 
 from tacgnn.config import to_dict
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning import checkpoint as ckpt
+from tacgnn.learning import distributed
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.guarded_ppo import GuardedPPO, NonFiniteUpdate
 from tacgnn.learning.online_perception import OnlinePerception
@@ -49,17 +56,23 @@ class Runner:
         iteration: updates completed so far.
         last_checkpoint: the newest checkpoint written or resumed from (None before one).
         perception_every: iterations between perception updates (perceived mode).
+        dist: this process's place in a multi-process run (one process by default).
     """
 
     def __init__(self, env: RslBaodingEnv, env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: Path | None,
-                 perception: OnlinePerception | None = None):
+                 perception: OnlinePerception | None = None, dist: distributed.Distributed | None = None):
         self.env, self.env_cfg, self.ppo_cfg = env, env_cfg, ppo_cfg
         self.run_dir, self.perception = run_dir, perception
-        cfg = {**ppo_cfg.rsl_rl_cfg(), "multi_gpu": None}
-        self.alg: GuardedPPO = GuardedPPO.construct_algorithm(env.get_observations(), env, cfg, "cpu")
+        self.dist = dist or distributed.Distributed()
+        if self.dist.enabled and perception is not None:
+            raise ValueError("the perception in the loop trains on one process's frames; run it in one process")
+        self.device = self.dist.device
+        cfg = {**ppo_cfg.rsl_rl_cfg(), "multi_gpu": self.dist.rsl_rl_cfg()}
+        self.alg: GuardedPPO = GuardedPPO.construct_algorithm(env.get_observations().to(self.device), env, cfg,
+                                                              self.device)
         self.logger = Logger(log_dir=None if run_dir is None else str(run_dir), cfg=cfg, env_cfg=env.cfg,
-                             num_envs=env.num_envs, is_distributed=False, gpu_world_size=1, gpu_global_rank=0,
-                             device="cpu")
+                             num_envs=env.num_envs, is_distributed=self.dist.enabled,
+                             gpu_world_size=self.dist.world_size, gpu_global_rank=self.dist.rank, device=self.device)
         self.logger.git_status_repos = []  # else rsl_rl runs `git status`/`git diff` on the enclosing repo
         self.iteration = 0
         self.last_checkpoint: Path | None = None
@@ -75,7 +88,9 @@ class Runner:
             self.logger.init_logging_writer()
         if self.perception is not None and self.iteration == 0 and self.perception.updates == 0:
             self.warm_up_perception()
-        obs = self.env.get_observations()
+        if self.dist.enabled:  # rank 0's networks everywhere (each rank drew its own at construction)
+            self.alg.broadcast_parameters()
+        obs = self.env.get_observations().to(self.device)
         self.alg.train_mode()
         start = self.iteration
         while self.iteration < until:
@@ -84,6 +99,7 @@ class Runner:
                 for _ in range(self.ppo_cfg.num_steps_per_env):
                     actions = self.alg.act(obs)
                     obs, rewards, dones, extras = self.env.step(actions)
+                    obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                     self.alg.process_env_step(obs, rewards, dones, extras)
                     self.logger.process_env_step(rewards, dones, extras)
                 self.alg.compute_returns(obs)
@@ -137,11 +153,12 @@ class Runner:
         cfg = self.perception.cfg
         actor = self.alg.get_policy()
         self.alg.eval_mode()  # the observation normaliser must not learn from these steps
-        obs = self.env.get_observations()
+        obs = self.env.get_observations().to(self.device)
         for round_ in range(1, cfg.warmup_rounds + 1):
             with torch.inference_mode():
                 for _ in range(cfg.update_every_steps):
                     obs, *_ = self.env.step(actor(obs, stochastic_output=True))
+                    obs = obs.to(self.device)
             metrics = self.perception.update()
             torch.set_num_threads(self.ppo_cfg.torch_threads)
             print(f"[perception warm-up] round {round_}/{cfg.warmup_rounds}: {_metrics_line(metrics)}", flush=True)
@@ -158,34 +175,65 @@ class Runner:
             "obs_dim": self.env.num_obs,
             "num_actions": self.env.num_actions,
             **self.alg.save(),  # actor, critic and optimizer state dicts (normalisers are actor/critic buffers)
-            # rsl_rl draws actions and mini-batch permutations from torch's global RNG only.
-            "rng": {"torch": torch.get_rng_state()},
-            "env_state": self.env.state_dict(),
+            **self._rank_state(),
+            "world_size": self.dist.world_size,
         }
         if self.perception is not None:
             state["perception"] = self.perception.state_dict()
         return state
 
+    def _rank_state(self) -> dict[str, Any]:
+        """What differs between ranks: the envs and the random streams."""
+        # rsl_rl draws actions and mini-batch permutations from torch's global RNG only.
+        rng = {"torch": torch.get_rng_state()}
+        if self.device.startswith("cuda"):
+            rng["cuda"] = torch.cuda.get_rng_state(torch.device(self.device))
+        return {"rng": rng, "env_state": self.env.state_dict()}
+
     def save_checkpoint(self, run_dir: Path | None = None) -> Path | None:
-        """Write model_<iteration>.pt (and the perception's frames) into run_dir (default: the run's)."""
+        """Write model_<iteration>.pt (and the perception's frames) into run_dir (default: the run's).
+
+        Every rank must call it (the ranks' states are gathered); rank 0 alone writes, and only
+        rank 0 returns the path.
+        """
         run_dir = run_dir or self.run_dir
         if run_dir is None:
+            return None
+        others = distributed.gather_to_main(self._rank_state(), self.dist)
+        if not self.dist.is_main:
+            distributed.barrier(self.dist)
             return None
         if self.perception is not None:  # frames first: a checkpoint on disk always has its frames
             ckpt.save_frames(run_dir, self.iteration, self.perception.frames_state_dict())
         target = ckpt.checkpoint_path(run_dir, self.iteration)
-        ckpt.save(target, self.state_dict())
+        state = self.state_dict()
+        if self.dist.enabled:
+            assert others is not None
+            state["rank_states"] = others[1:]  # rank r > 0 resumes from rank_states[r - 1]
+        ckpt.save(target, state)
+        distributed.barrier(self.dist)  # the file is on disk when save_checkpoint returns on any rank
         if self.perception is not None:
             ckpt.remove_frames_except(run_dir, self.iteration)
         self.last_checkpoint = target
         return target
 
     def restore(self, checkpoint: dict[str, Any], frames: dict[str, Any] | None = None) -> None:
-        """Continue from `checkpoint` (read by `load_checkpoint`): models, optimiser, RNG, env, perception."""
+        """Continue from `checkpoint` (read by `load_checkpoint`): models, optimiser, RNG, env, perception.
+
+        A checkpoint of a multi-process run resumes with as many processes, each rank from its own state.
+        """
+        written_by = int(checkpoint.get("world_size", 1))
+        if written_by != self.dist.world_size:
+            raise ckpt.CheckpointError(f"checkpoint of iteration {checkpoint['iteration']} was written by "
+                                       f"{written_by} process(es); resume it with as many, not "
+                                       f"{self.dist.world_size}")
         self.alg.load(checkpoint, load_cfg=None, strict=True)  # also restores the adaptive learning rate
         self.iteration = checkpoint["iteration"]
-        self.env.load_state_dict(checkpoint["env_state"])
-        torch.set_rng_state(checkpoint["rng"]["torch"])
+        own = checkpoint if self.dist.is_main else checkpoint["rank_states"][self.dist.rank - 1]
+        self.env.load_state_dict(own["env_state"])
+        torch.set_rng_state(own["rng"]["torch"])
+        if "cuda" in own["rng"] and self.device.startswith("cuda"):
+            torch.cuda.set_rng_state(own["rng"]["cuda"], torch.device(self.device))
         if self.perception is not None:
             if "perception" not in checkpoint:
                 raise ckpt.CheckpointError("checkpoint has no perception state, but this run trains one")
@@ -194,10 +242,35 @@ class Runner:
                 self.perception.load_frames_state_dict(frames)
 
 
-def make_runner(env, ppo_cfg: PPOConfig, log_dir: Path | None = None) -> OnPolicyRunner:
-    """A plain rsl_rl runner for any VecEnv from `ppo_cfg` (tests, benchmarks, other tasks); no checkpoints."""
-    runner = OnPolicyRunner(env, ppo_cfg.rsl_rl_cfg(), log_dir=None if log_dir is None else str(log_dir),
-                            device="cpu")
+class DataParallelRunner(OnPolicyRunner):
+    """rsl_rl's runner, multi-process on GPUs (nccl) and on the CPU (gloo), for any VecEnv.
+
+    rsl_rl's `_configure_multi_gpu` insists on ``cuda:LOCAL_RANK`` and nccl; this one takes the
+    backend from the device (`tacgnn.learning.distributed`). The rest (parameter broadcast at
+    the start, all-reduced gradients, logs and saves on rank 0 only) is rsl_rl's. Seeding the
+    ranks' envs apart is the caller's job (`distributed.rank_seed`).
+    """
+
+    def _configure_multi_gpu(self) -> None:
+        setup = distributed.from_environment("cpu" if self.device == "cpu" else "cuda")
+        if setup.enabled and setup.device != self.device:
+            raise ValueError(f"device {self.device!r} on the rank with LOCAL_RANK={setup.local_rank}: "
+                             f"expected {setup.device!r}")
+        self.setup = setup
+        self.gpu_world_size, self.is_distributed = setup.world_size, setup.enabled
+        self.gpu_global_rank, self.gpu_local_rank = setup.rank, setup.local_rank
+        self.cfg["multi_gpu"] = setup.rsl_rl_cfg()
+        distributed.init(setup)
+
+
+def make_runner(env: VecEnv, ppo_cfg: PPOConfig, log_dir: Path | None = None,
+                device: str = "cpu") -> OnPolicyRunner:
+    """A plain rsl_rl runner for any VecEnv from `ppo_cfg` (tests, benchmarks, other tasks); no checkpoints.
+
+    Under torchrun it is a data-parallel one (`DataParallelRunner`).
+    """
+    runner = DataParallelRunner(env, ppo_cfg.rsl_rl_cfg(), log_dir=None if log_dir is None else str(log_dir),
+                                device=device)
     runner.logger.git_status_repos = []
     return runner
 

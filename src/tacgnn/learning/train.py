@@ -2,11 +2,13 @@
 
     tacgnn train-policy --run-dir runs/gt --env task=simple --ppo max_iterations=5000
     tacgnn train-policy --run-dir runs/gt --resume
+    torchrun --standalone --nproc-per-node 4 -m tacgnn.cli train-policy --device cuda --run-dir runs/gt ...
 
 A run folder holds config.yaml, TensorBoard
 events and ``model_<iterations>.pt`` checkpoints (`tacgnn.learning.checkpoint`). Resuming
 continues from the newest checkpoint, bit for bit as if the run had never stopped; temp
-files left by a killed write are removed first.
+files left by a killed write are removed first. Under torchrun the ranks train one policy
+on their own envs (`tacgnn.learning.distributed`); rank 0 writes the run folder.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from tacgnn.config import ConfigError, from_dict, override, parse_overrides, to_
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.files import FileProblem, atomic_write_text, remove_stale_temp_files
 from tacgnn.learning import checkpoint as ckpt
+from tacgnn.learning import distributed
 from tacgnn.learning.config import ARCHITECTURE_KEYS, PPOConfig
 from tacgnn.learning.online_perception import OnlinePerceptionConfig
 from tacgnn.learning.online_temporal import make_online_perception
@@ -42,8 +45,13 @@ def seed_everything(seed: int) -> None:
 
 
 def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None = None,
-          resume: bool = False, perception_cfg: OnlinePerceptionConfig | None = None) -> Path | None:
+          resume: bool = False, perception_cfg: OnlinePerceptionConfig | None = None,
+          dist: distributed.Distributed | None = None) -> Path | None:
     """Train until ``ppo_cfg.max_iterations`` iterations are done; return the last checkpoint.
+
+    `dist` places this process in a multi-process run (`distributed.from_environment`; default
+    one process on the CPU): the process group is joined here, this rank's envs and random
+    draws are seeded apart from the others', and only rank 0 writes (and returns a path).
 
     run_dir (default ``log_dir/experiment_name``) receives config.yaml, TensorBoard events
     and checkpoints. A fresh run refuses a run_dir that already holds checkpoints;
@@ -57,26 +65,34 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
         raise ConfigError("obs_mode 'perceived' and a perception config go together "
                           f"(obs_mode={env_cfg.obs_mode!r}, "
                           f"perception config {'given' if perception_cfg else 'missing'})")
+    dist = dist or distributed.Distributed()
+    if dist.enabled and perception_cfg is not None:
+        raise ConfigError(f"obs_mode 'perceived' trains its perception on one process's frames: run it in one "
+                          f"process, not {dist.world_size}")
     torch.set_num_threads(ppo_cfg.torch_threads)
-    if run_dir.is_dir():
+    if run_dir.is_dir() and dist.is_main:
         for tmp in remove_stale_temp_files(run_dir):
             log.info("removed %s, left by a write that was killed", tmp)
     checkpoint, path = _checkpoint_to_resume(run_dir, env_cfg, ppo_cfg, resume)
     start = _initial_weights(ppo_cfg) if checkpoint is None and ppo_cfg.init_from else None
+    distributed.init(dist)  # after the checks, which every rank makes alike: a bad run fails on all
+    distributed.check_same(None if path is None else path.name, "the checkpoint to resume (the run folder "
+                           "must be one folder shared by all ranks)", dist)
 
-    seed_everything(ppo_cfg.seed)
+    seed_everything(distributed.rank_seed(ppo_cfg.seed, dist))
     perception = (None if perception_cfg is None
                   else make_online_perception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed))
-    env = RslBaodingEnv(env_cfg, ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs, perception=perception,
-                        privileged_critic=ppo_cfg.privileged_critic)
+    env = RslBaodingEnv(_rank_env_config(env_cfg, dist), ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs,
+                        perception=perception, privileged_critic=ppo_cfg.privileged_critic)
     if perception is not None:
         env.on_step = perception.record
     for given, where in ((checkpoint, path), (start, ppo_cfg.init_from)):
         if given is not None and given["obs_dim"] != env.num_obs:
             raise ckpt.CheckpointError(f"checkpoint {where}: obs_dim {given['obs_dim']} != this env's {env.num_obs}")
-    _write_run_config(run_dir, env_cfg, ppo_cfg, perception_cfg)
+    if dist.is_main:
+        _write_run_config(run_dir, env_cfg, ppo_cfg, perception_cfg)
 
-    runner = Runner(env, env_cfg, ppo_cfg, run_dir, perception)
+    runner = Runner(env, env_cfg, ppo_cfg, run_dir, perception, dist)
     if start is not None:
         runner.alg.load(start, load_cfg={"actor": True, "critic": True}, strict=True)
         _set_action_std(runner, ppo_cfg.init_noise_std)  # explore afresh around the loaded policy
@@ -88,13 +104,25 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
                         "not match an uninterrupted one bit for bit",
                         ckpt.frames_path(run_dir, checkpoint["iteration"]))
         runner.restore(checkpoint, frames)
-        runner.last_checkpoint = path
-        print(f"resuming {path} at iteration {checkpoint['iteration']}")
+        runner.last_checkpoint = path if dist.is_main else None
+        if dist.is_main:
+            print(f"resuming {path} at iteration {checkpoint['iteration']}")
     try:
         runner.learn(ppo_cfg.max_iterations)
     finally:
         runner.close()
     return runner.last_checkpoint
+
+
+def _rank_env_config(env_cfg: BaodingConfig, dist: distributed.Distributed) -> BaodingConfig:
+    """This rank's envs: their own seed, and under torchrun a Warp 'cuda' on this rank's GPU.
+
+    The run's config (stored, compared on resume) stays the one given.
+    """
+    sim = env_cfg.sim
+    if dist.enabled and sim.backend == "warp" and sim.device == "cuda" and dist.device.startswith("cuda"):
+        sim = replace(sim, device=dist.device)
+    return replace(env_cfg, seed=distributed.rank_seed(env_cfg.seed, dist), sim=sim)
 
 
 def _checkpoint_to_resume(run_dir: Path, env_cfg: BaodingConfig, ppo_cfg: PPOConfig,
@@ -166,12 +194,16 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
     parser = parser_class(prog="tacgnn train-policy", description="Train PPO on the Baoding env.")
     parser.add_argument("--run-dir", type=Path, help="default: <log_dir>/<experiment_name>")
     parser.add_argument("--resume", action="store_true", help="continue from the newest checkpoint")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of the policy and PPO: cpu, cuda or cuda:N; under torchrun "
+                             "'cuda' is cuda:LOCAL_RANK (nccl) and 'cpu' runs the ranks on the CPU (gloo)")
     parser.add_argument("--env", nargs="*", default=[], metavar="KEY=VALUE", help="Baoding config overrides")
     parser.add_argument("--ppo", nargs="*", default=[], metavar="KEY=VALUE", help="PPOConfig overrides")
     parser.add_argument("--perception", nargs="*", default=[], metavar="KEY=VALUE",
                         help="OnlinePerceptionConfig overrides (with --env obs_mode=perceived), "
                              "e.g. model.name=tacgnn pretrained=runs/p/checkpoint.pt")
     args = parser.parse_args(argv)
+    dist = distributed.from_environment(args.device)  # a device that is not here: ConfigError, at once
     env_cfg, ppo_cfg, perception_cfg = BaodingConfig(), PPOConfig(), None
     if args.resume and args.run_dir is not None and (args.run_dir / "config.yaml").is_file():
         env_cfg, ppo_cfg, perception_cfg = _stored_configs(args.run_dir)  # resume the run as configured
@@ -183,5 +215,8 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         raise ConfigError("--perception needs --env obs_mode=perceived")
     else:
         perception_cfg = None  # a stored one goes with the stored obs_mode, which --env changed
-    train(env_cfg, ppo_cfg, args.run_dir, resume=args.resume, perception_cfg=perception_cfg)
+    try:
+        train(env_cfg, ppo_cfg, args.run_dir, resume=args.resume, perception_cfg=perception_cfg, dist=dist)
+    finally:
+        distributed.shutdown(dist)
     return 0
