@@ -153,6 +153,12 @@ def test_host_mirror_path_equals_the_views(pair):
     for name in ("qpos", "qvel", "xpos", "xmat", "sensordata", "actuator_force"):
         np.testing.assert_array_equal(getattr(mirror, name), getattr(view, name), err_msg=name)
     assert np.abs(view.qpos[1] - c.sim.qpos[1]).max() > 1e-6  # env 1 moved; env 0 was reset and placed
+    # the bytes a GPU run copies: the views none, the mirrors at least the state both ways and what is read
+    before = mirror.host_bytes
+    mirror.step(1)
+    state = sum(getattr(mirror, n).nbytes for n in ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart"))
+    read = sum(getattr(mirror, n).nbytes for n in ("xpos", "xmat", "sensordata", "actuator_force"))
+    assert view.host_bytes == 0 and mirror.host_bytes - before >= 2 * state + read
 
 
 def test_forward_of_some_envs_leaves_the_others_derived_arrays(pair):

@@ -103,7 +103,9 @@ class WarpSim:
         max_speed: |qvel| above which an env counts as diverged.
         mirror: keep host copies of the arrays (forced on a GPU; on the CPU, for tests).
 
-    Attributes: as `BatchedSim`; all (N, ...) numpy arrays, float32.
+    Attributes: as `BatchedSim`; all (N, ...) numpy arrays, float32. And:
+        host_bytes: bytes copied between the host mirrors and the device so far (0 without mirrors):
+            what a GPU run moves over the bus.
     """
 
     # set from the Data fields of the same names in __init__ (_STATE, _DERIVED, time)
@@ -142,6 +144,7 @@ class WarpSim:
             self.wdata = mjw.put_data(m, data, nworld=num_envs, nconmax=nconmax, njmax=njmax)
         self.wmodel.opt.warn_overflow = 0  # `step` checks the flags itself
         self.nconmax, self.njmax = nconmax, njmax
+        self.host_bytes = 0
         self._expanded: dict[str, tuple[Any, np.ndarray]] = {}  # field -> (device array (warp), view)
         self._mask = wp.zeros(num_envs, dtype=bool, device=self.device)
         for name in _STATE + _DERIVED + ("time",):
@@ -159,8 +162,10 @@ class WarpSim:
             return
         for name in _STATE:
             getattr(self.wdata, name).assign(getattr(self, name))
+            self.host_bytes += getattr(self, name).nbytes
         for array, host in self._expanded.values():
             array.assign(host)
+            self.host_bytes += host.nbytes
 
     def _download(self, names=_STATE + _DERIVED + ("time",)) -> None:
         if not self.mirror:
@@ -168,6 +173,7 @@ class WarpSim:
         for name in names:
             host = getattr(self, name)
             host[...] = getattr(self.wdata, name).numpy().reshape(host.shape)
+            self.host_bytes += host.nbytes
 
     @property
     def batch(self) -> WarpSim:
@@ -228,6 +234,7 @@ class WarpSim:
         mask = np.zeros(self.num_envs, bool)
         mask[ids] = True
         self._mask.assign(mask)
+        self.host_bytes += mask.nbytes if self.mirror else 0
         return mask
 
     def reset(self, ids: np.ndarray) -> None:
@@ -256,6 +263,7 @@ class WarpSim:
                 full[keep] = rows
                 if self.mirror:
                     array.assign(full)
+                    self.host_bytes += 2 * full.nbytes  # down, then up again
         self._download()
 
     def step(self, nstep: int) -> np.ndarray:
@@ -276,6 +284,7 @@ class WarpSim:
         The flags stay set until an env is reset, which the caller does to a diverged env.
         """
         flags = self.wdata.overflow.numpy()
+        self.host_bytes += flags.nbytes if self.mirror else 0
         pool = [what for bit, what in _POOL_OVERFLOWS.items() if np.bitwise_or.reduce(flags) & bit]
         if pool:
             raise RuntimeError(f"MuJoCo Warp ran out of room for {' and '.join(pool)} ({self.nconmax} per env): "
