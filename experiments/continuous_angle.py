@@ -1,7 +1,7 @@
 """The ball pair's angle over a continuous-task episode, for a few episodes of each policy.
 
     .venv/bin/python experiments/continuous_angle.py OUT.png LABEL=CHECKPOINT [...]
-        [--episodes 8] [--seed 0] [--set KEY=VALUE ...]
+        [--episodes 8] [--seed 0] [--set KEY=VALUE ...] [--perception FILE] [--video OUT.mp4]
 
 Each policy runs deterministically in its own training env (task continuous, `--set`
 changes applied), `--episodes` envs side by side, each until its first episode ends. The
@@ -9,6 +9,9 @@ figure has one panel per policy: turns of the ball-to-ball vector (in the policy
 direction) against time, a cross where a ball fell. A blind policy (obs_mode 'perceived')
 gets a second panel: the perception's ball-position error along the episode (cm, the two
 balls matched to the truth the cheaper way round), which is what a blind turn can stop on.
+`--perception FILE` (a perception checkpoint, as for `tacgnn evaluate --perception`) runs
+every policy on that perception's ball positions. `--video` also films the first policy's
+first episode (10 s, the skin beside the hand; MUJOCO_GL=egl without a display).
 Beside OUT.png a JSON holds the curves' summary (turns per episode, falls, step of each
 fall, the mean perception error) with provenance.
 """
@@ -26,8 +29,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from tacgnn.config import override, parse_overrides  # noqa: E402
+from tacgnn.config import override, parse_overrides, to_dict  # noqa: E402
 from tacgnn.envs.baoding import BaodingEnv  # noqa: E402
+from tacgnn.learning.evaluate import perception_from_file  # noqa: E402
 from tacgnn.learning.policy import load_perception, load_policy  # noqa: E402
 from tacgnn.provenance import provenance  # noqa: E402
 
@@ -40,11 +44,14 @@ def perception_error_cm(perceived: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return 100 * np.minimum(straight, crossed)
 
 
-def run_episodes(checkpoint: str, episodes: int, seed: int, changes: dict) -> dict:
+def run_episodes(checkpoint: str, episodes: int, seed: int, changes: dict, perception_file: Path | None) -> dict:
     """Angles (deg, per step) of `episodes` first episodes, the step each ended, falls, perception errors."""
     policy, stored = load_policy(checkpoint)
     cfg = override(replace(stored, task="continuous", num_envs=episodes, seed=seed), changes)
     perception = load_perception(checkpoint) if cfg.obs_mode == "perceived" else None
+    if perception_file is not None:
+        perception = perception_from_file(perception_file, to_dict(cfg.skin))
+        cfg = replace(cfg, obs_mode="perceived", tactile=True)
     env = BaodingEnv(cfg, perception=perception)
     obs, _ = env.reset(seed=seed)
     n, limit = episodes, env.episode_limit
@@ -64,6 +71,22 @@ def run_episodes(checkpoint: str, episodes: int, seed: int, changes: dict) -> di
             "errors": errors if perception is not None else None}
 
 
+def film(checkpoint: str, out: Path, seed: int, changes: dict, perception_file: Path | None) -> None:
+    """A video of one continuous-task episode of `checkpoint`, the skin beside the hand."""
+    from tacgnn.tools.render import render_episode  # picks an offscreen GL backend before mujoco loads
+
+    policy, stored = load_policy(checkpoint)
+    cfg = override(replace(stored, task="continuous", num_envs=1, seed=seed, tactile=True), changes)
+    perception = load_perception(checkpoint) if cfg.obs_mode == "perceived" else None
+    if perception_file is not None:
+        perception = perception_from_file(perception_file, to_dict(cfg.skin))
+        cfg = replace(cfg, obs_mode="perceived")
+    env = BaodingEnv(cfg, perception=perception)
+    obs, _ = env.reset(seed=seed)
+    summary = render_episode(env, policy, out, steps=env.episode_limit, obs=obs)
+    print(f"video: {out} ({summary['frames']} frames, final angle {summary['final_angle_deg']:.0f} deg)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
@@ -71,10 +94,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--perception", type=Path, metavar="FILE")
+    parser.add_argument("--video", type=Path, metavar="OUT.mp4")
     args = parser.parse_args(argv)
     changes = parse_overrides(args.set)
     items = [p.split("=", 1) for p in args.policies]
-    runs = [(label, ckpt, run_episodes(ckpt, args.episodes, args.seed, changes)) for label, ckpt in items]
+    runs = [(label, ckpt, run_episodes(ckpt, args.episodes, args.seed, changes, args.perception))
+            for label, ckpt in items]
     rows = sum(1 + (r["errors"] is not None) for _, _, r in runs)
     fig, axes = plt.subplots(rows, 1, figsize=(6.4, 2.3 * rows), sharex=True, squeeze=False)
     summary, row = [], 0
@@ -108,9 +134,11 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=90)
     record = {"episodes": summary,
-              "provenance": provenance({label: ckpt for label, ckpt, _ in runs}, args.seed,
-                                       {"episodes": args.episodes, "set": args.set})}
+              "provenance": provenance({**{label: ckpt for label, ckpt, _ in runs}, "perception": args.perception},
+                                       args.seed, {"episodes": args.episodes, "set": args.set})}
     args.out.with_suffix(".json").write_text(json.dumps(record, indent=2))
+    if args.video:
+        film(items[0][1], args.video, args.seed, changes, args.perception)
     for e in summary:
         print(f"{e['label']}: turns {np.mean(e['turns']):.2f} (per episode {np.round(e['turns'], 2).tolist()}), "
               f"falls {e['falls']}/{args.episodes}")
