@@ -10,6 +10,10 @@ of a scripted finger wave after a warm-up, and times:
   compiled numba kernel for 'c', the torch model for 'warp' fed numpy views (as the env
   does), and 'device' the torch model on the engine's device arrays (no host copies,
   what a GPU run would use).
+* host KB/env-step ('warp'): what a GPU run copies between host and device per env step
+  as the env drives the engine today: the engine's host mirrors (the state up before each
+  engine call, state and derived arrays down after; on the CPU the mirrors are switched on
+  for this count) and the skin fed host arrays (inputs up, readings and taxel positions down).
 
 On the CPU MuJoCo Warp is a development target (one launch per kernel, no threads); its
 speed is on a GPU, where this script runs unchanged with --device cuda:0. The first Warp
@@ -77,13 +81,39 @@ def bench(backend: str, num_envs: int, steps: int, device: str) -> dict:
         "env steps/s": n / env_time, "physics share": physics[0] / env_time,
         "skin us/step": 1e6 * readings / n, "device skin us/step": float("nan"),
         "contacts/env": float((env.tactile.contacts(sim.sensordata)[0] > 0).sum((1, 2)).mean()),
+        "host KB/env-step": float("nan"),
     }
     if backend == "warp":
+        row["host KB/env-step"] = host_traffic(env, [wave(None) for _ in range(steps)]) / 1024
         views = sim.device_views()
         on_device = timed(lambda: env.tactile.readings(views["sensordata"], views["xpos"], views["xmat"], rng),
                           steps, cfg.sim.device)
         row["device skin us/step"] = 1e6 * on_device / n
     return row
+
+
+def host_traffic(env: BaodingEnv, actions: list[np.ndarray]) -> float:
+    """Bytes per env step copied between host and device by a Warp env with host mirrors."""
+    sim, tactile = env.sim, env.tactile
+    skin_bytes = [0]
+
+    def counted(method):
+        def call(*arrays, **kwargs):
+            out = method(*arrays, **kwargs)
+            skin_bytes[0] += sum(a.nbytes for a in arrays if isinstance(a, np.ndarray)) + np.asarray(out).nbytes
+            return out
+        return call
+
+    mirror, before = sim.mirror, sim.host_bytes
+    sim.mirror = True  # on the CPU the "mirrors" are the views themselves: copying them changes nothing
+    tactile.readings, tactile.positions = counted(tactile.readings), counted(tactile.positions)
+    try:
+        for action in actions:
+            env.step(action)
+    finally:
+        sim.mirror = mirror
+        del tactile.readings, tactile.positions  # back to the class's methods
+    return (sim.host_bytes - before + skin_bytes[0]) / (len(actions) * env.num_envs)
 
 
 def equivalence(num_envs: int, device: str, states: int = 5) -> dict:
@@ -137,7 +167,7 @@ def main() -> None:
     rows = [bench(b, n, args.steps, args.device) for b in args.backends for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
-    fmt = {"physics share": "{:.2f}", "env steps/s": "{:.0f}"}
+    fmt = {"physics share": "{:.2f}", "env steps/s": "{:.0f}", "host KB/env-step": "{:.2f}"}
     for row in rows:
         print(" | ".join(fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k])
                          for k in keys), flush=True)

@@ -19,6 +19,8 @@ from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning import distributed
 from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.rsl_env import RslBaodingEnv
+from tacgnn.learning.runner import make_runner
 
 ENV = BaodingConfig(tactile=False, max_episode_steps=6)
 PPO = PPOConfig(num_envs=4, num_steps_per_env=4, num_mini_batches=2, num_learning_epochs=2, save_interval=100,
@@ -48,6 +50,12 @@ def _worker(out: Path) -> None:
                     "backend": torch.distributed.get_backend(),
                     "saves": [Path(call.args[0]).name for call in saved.call_args_list]},
                    out / f"{name}_rank{setup.rank}.pt")
+    # rsl_rl's own loop on any VecEnv, through the runner subclass that picks gloo on the CPU
+    env = RslBaodingEnv(replace(ENV, num_envs=4, seed=distributed.rank_seed(0, setup)))
+    runner = make_runner(env, PPO)
+    runner.learn(2)
+    torch.save({"actor": runner.alg.actor.state_dict(), "rollout": runner.alg.storage.observations["policy"].clone(),
+                "distributed": runner.is_distributed}, out / f"rsl_rl_rank{setup.rank}.pt")
     distributed.shutdown(setup)
 
 
@@ -57,7 +65,7 @@ def _torchrun(out: Path) -> dict[str, list[dict]]:
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     return {name: [torch.load(out / f"{name}_rank{r}.pt", weights_only=True) for r in (0, 1)]
-            for name in ("first", "resumed", "straight")}
+            for name in ("first", "resumed", "straight", "rsl_rl")}
 
 
 def _same(a: dict, b: dict) -> bool:
@@ -89,6 +97,11 @@ def test_two_cpu_ranks_train_one_policy_on_different_experience_and_resume_exact
         assert _same(resumed[rank]["actor"], straight[rank]["actor"])
         assert torch.equal(resumed[rank]["rollout"], straight[rank]["rollout"])
     assert _same(resumed[0]["actor"], resumed[1]["actor"]) and not _same(resumed[0]["actor"], ranks[0]["actor"])
+
+    # rsl_rl's own runner (make_runner, any VecEnv): also one policy from the ranks' different rollouts
+    plain = runs["rsl_rl"]
+    assert plain[0]["distributed"] and _same(plain[0]["actor"], plain[1]["actor"])
+    assert not torch.equal(plain[0]["rollout"], plain[1]["rollout"])
 
 
 def test_a_checkpoint_resumes_only_with_as_many_processes(tmp_path, capsys):
