@@ -1,7 +1,9 @@
 """Data-parallel PPO over 2 processes on the CPU (gloo), launched by torchrun as on GPUs.
 
 Run as a script by torchrun (`_worker`), this file trains a tiny Baoding problem on each rank
-and saves what the rank ended with; the tests compare the ranks.
+and saves what the rank ended with; the first test compares the ranks. The others check the
+launches that cannot work (a device that is not here, variables torchrun did not set, a
+checkpoint of another number of processes): one line, exit 2, before anything is written.
 """
 
 import os
