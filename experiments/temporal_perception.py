@@ -115,18 +115,24 @@ def main() -> None:
     for run in args.runs:
         ckpt = Path(run) / "checkpoint.pt"
         model, cfg, _ = load_sequence_model(ckpt)
-        history = load_sequence_checkpoint(ckpt)["history"]
+        payload = load_sequence_checkpoint(ckpt)
+        history, trained_on = payload["history"], payload.get("dataset", {}).get("path", args.dataset)
         if cfg.max_frames not in loaded:
             loaded[cfg.max_frames] = load_sequences(args.dataset, cfg.max_frames)
         train_set, test_set = split_by_episode(loaded[cfg.max_frames], cfg.train_fraction, cfg.seed)
         pred = sequence_predictions(model, cfg, test_set)
         metrics = prediction_metrics(pred, cfg, test_set)
         name = label(cfg)
+        own = Path(trained_on).resolve() == Path(args.dataset).resolve()
+        if not own:  # a model trained on another dataset, read on these test episodes
+            name = f"{name}, trained on {trained_on}"
         if name in results:
             name = f"{name} ({Path(run).name})"
         results[name] = {
-            "run": str(run), "epochs": cfg.epochs, "train_seconds": sum(h["seconds"] for h in history),
-            "train_frames": len(train_set), "train_episodes": len(train_set.episodes()),
+            "run": str(run), "trained_on": trained_on, "epochs": cfg.epochs,
+            "train_seconds": sum(h["seconds"] for h in history),
+            "train_frames": len(train_set) if own else None,
+            "train_episodes": len(train_set.episodes()) if own else None,
             "test_frames": len(test_set), "test_episodes": len(test_set.episodes()), **metrics,
             "by_steps_since_touch": since_touch_curve(pred, cfg, test_set, BINS),
             "history_test_rmse_cm": [h["test/position_rmse_cm"] for h in history],
@@ -140,7 +146,7 @@ def main() -> None:
             lost_rmse = prediction_metrics(sequence_predictions(model, cfg, lost), cfg, lost)["position_rmse_cm"]
             results[name][f"{args.lose_patch}_lost_rmse_cm"] = lost_rmse
             results[name][f"{args.lose_patch}_lost_rmse_ratio"] = lost_rmse / metrics["position_rmse_cm"]
-        if args.train_error:
+        if args.train_error and own:
             results[name]["train_position_rmse_cm"] = prediction_metrics(
                 sequence_predictions(model, cfg, train_set), cfg, train_set)["position_rmse_cm"]
         results[name]["config"] = to_dict(cfg)
