@@ -79,7 +79,8 @@ def finish(proc: subprocess.Popen) -> str:
 def calibration(ros_env, policy, tmp_path_factory):
     """record-skin of the simulated hand at rest (a bag), then calibrate-skin on that bag."""
     d = tmp_path_factory.mktemp("calib")
-    recorder = tacgnn(ros_env, "record-skin", "--out", str(d / "rest.bag"), "--frames", "40")
+    recorder = tacgnn(ros_env, "record-skin", "--out", str(d / "rest.bag"), "--frames", "40",
+                      "--set", "startup_timeout_s=60")  # the hand may take long to start on a loaded machine
     time.sleep(1.0)
     hand = tacgnn(ros_env, "sim-hand", "--rest-steps", "150", "--skin-noise", "0.05", "--dead-taxels", "0.01",
                   policy=policy)
@@ -117,6 +118,11 @@ def test_blind_controller_runs_the_simulated_hand_and_replays_offline(ros_env, c
     # about one command per step of the hand (a loaded machine misses some ticks: the hand then holds)
     assert stats["episodes"] == 2 and stats["commands"] >= 0.8 * steps, stats
     assert hand["commands_received"] == stats["commands"]
+    # every step of the hand applied a command that answers a state it sent (lag in steps, by the
+    # command's stamp) or held; skin and joint angles of one instant
+    lags = hand["command_lag_steps"]
+    assert sum(lags.values()) == steps and set(lags) <= {"none", "0", "1", "2", "3+"}, lags
+    assert stats["unpaired_skin"] <= 0.2 * stats["commands"], stats
 
     from tacgnn.real import ros
     from tacgnn.real.controller import BlindController, BlindControllerConfig

@@ -32,14 +32,24 @@ class BagError(ValueError):
     """A bag is missing, unreadable or lacks what is needed; the message names file and problem."""
 
 
+HEADER_DEFINITION = """uint32 seq
+time stamp
+string frame_id
+"""
+"""std_msgs/Header, as ROS 1 spells it in a message's full definition."""
+
+
 def tactile_definition(fields: Iterable[tuple[str, str]]) -> str:
-    """The message definition of a skin message with one float32 array per patch field.
+    """The full definition of a skin message: a header, then one float32 array per patch field.
 
     Used when the skin's message package is not installed (the simulated hand): it must
-    match the publisher's definition for ROS to connect them. Fields in name order, so
-    the definition depends on which fields there are, not on which patch reads which.
+    match the publisher's definition for ROS to connect them. The header's stamp is the
+    instant of the frame, so a controller can pair it with the joint state of the same
+    instant. Fields in name order, so the definition depends on which fields there are,
+    not on which patch reads which.
     """
-    return "".join(f"float32[] {attr}\n" for attr in sorted({attr for _, attr in fields}))
+    body = "Header header\n" + "".join(f"float32[] {attr}\n" for attr in sorted({attr for _, attr in fields}))
+    return body + "=" * 80 + "\nMSG: std_msgs/Header\n" + HEADER_DEFINITION
 
 
 def _store_name(msgtype: str) -> str:

@@ -36,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", help="run: skin calibration from calibrate-skin")
     p.add_argument("--max-step-rad", type=float, default=0.0, help="run: keep targets this close to the pose")
     p.add_argument("--max-target-rate", type=float, default=0.0, help="run: largest target speed (rad/s), 0: none")
-    p.add_argument("--duration", type=float, default=0.0, help="run: stop after this many seconds (0: never)")
+    p.add_argument("--duration", type=float, default=0.0, help="run, sim-hand: stop after this many seconds (0: never)")
     p.add_argument("--record", help="run: write the ticks (inputs and commands) to this .bag")
     p.add_argument("--stats", help="run: write the loop's statistics (latency, missed ticks) as JSON here")
     p.add_argument("--out", default="outputs/real_recording.bag",
@@ -122,12 +122,14 @@ def _action(args, cfg) -> int:
         hand = SimHandConfig(task=args.task, episodes=args.episodes, seed=args.seed, latency_s=args.latency_ms / 1e3,
                              drop_tactile=args.drop_tactile, drop_joint_states=args.drop_joint_states,
                              joint_noise_rad=float(args.joint_noise_deg) * 3.141592653589793 / 180,
-                             skin_noise=args.skin_noise, dead_taxels=args.dead_taxels, rest_steps=args.rest_steps)
+                             skin_noise=args.skin_noise, dead_taxels=args.dead_taxels, rest_steps=args.rest_steps,
+                             duration_s=args.duration)
         summary = SimHand(env_config, hand, cfg).run(args.summary)
         if not args.rest_steps:
             print(f"{summary['episodes']} episodes on {summary['task']}: success {summary['success_rate']:.3f}, "
                   f"falls {summary['fall_rate']:.3f}; {summary['commands_received']} commands received, "
-                  f"{summary['late_steps']} late steps")
+                  f"{summary['late_steps']} late steps; command lag (steps: count) {summary['command_lag_steps']}, "
+                  f"state-to-command {summary['response_ms']} ms")
         if args.summary:
             print(f"wrote {Path(args.summary)}")
     return 0

@@ -22,9 +22,13 @@ Topics (the authors' setup, all configurable in `RosConfig`):
 
 Control ticks follow the joint states, at most 50 Hz (`clock`: with a hand that
 publishes at the control rate each tick reads the state it just measured), or run on a
-fixed 50 Hz clock for faster drivers. Each tick takes the newest joint state and skin
-frame; when either is older
-than ``stale_periods`` control periods it commands nothing, so the hand holds its last
+fixed 50 Hz clock for faster drivers. Each tick takes the newest joint state and the skin
+frame of the same instant: the tick waits up to ``pair_window_s`` for it (same header
+stamp where both messages carry one, else a frame newer than the last tick), so joint
+angles and skin are never taken from two different steps of the hand when both arrive.
+The command's header stamp is the stamp of the joint state it answers (a driver can
+tell how late it is). When the joint state or the skin frame is older
+than ``stale_periods`` control periods the tick commands nothing, so the hand holds its last
 command, and one log line says so (one more when data is fresh again). Before the first
 command, the first joint state and skin frame are checked (joint names, patch sizes,
 calibration layout): a mismatch stops with an error that names it.
@@ -32,11 +36,13 @@ calibration layout): a mismatch stops with an error that names it.
 
 from __future__ import annotations
 
+import gc
 import importlib
 import json
 import logging
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,6 +91,9 @@ class RosConfig:
     measured); 'timer': a fixed rate_hz clock, started `align_delay_s` after a joint state
     (for a driver that publishes faster than the control rate)."""
     align_delay_s: float = 0.001
+    pair_window_s: float = 0.005
+    """After a new joint state, wait up to this long for the skin frame of the same instant
+    (clock 'joint_states'); then tick with the newest frame there is."""
     startup_timeout_s: float = 10.0
     """How long to wait for the first joint state and skin frame."""
 
@@ -99,6 +108,8 @@ class RosConfig:
         check(self.clock in ("joint_states", "timer"), "ros.clock",
               f"must be joint_states or timer, got {self.clock!r}")
         check(self.startup_timeout_s > 0, "ros.startup_timeout_s", "must be positive")
+        check(0 <= self.pair_window_s < 1 / self.rate_hz, "ros.pair_window_s",
+              f"must be in [0, one period = {1 / self.rate_hz:g} s), got {self.pair_window_s}")
 
     @property
     def period(self) -> float:
@@ -110,6 +121,18 @@ class RosConfig:
 
 
 # --- messages (no ROS needed) ------------------------------------------------------------
+def stamp_ns(msg: Any) -> int | None:
+    """A message's header stamp in integer nanoseconds (ROS 1 or 2); None without a header or with stamp 0."""
+    header = getattr(msg, "header", None)
+    if header is None:
+        return None
+    stamp = header.stamp
+    secs = stamp.secs if hasattr(stamp, "secs") else stamp.sec
+    nsecs = stamp.nsecs if hasattr(stamp, "nsecs") else stamp.nanosec
+    ns = int(secs) * 1_000_000_000 + int(nsecs)
+    return ns or None
+
+
 def decode_joint_state(msg: Any, names: tuple[str, ...] = ALLEGRO_JOINT_NAMES) -> tuple[np.ndarray, np.ndarray]:
     """(positions, velocities) (16,) each, in our joint order, from a JointState-like message."""
     pos = np.asarray(msg.position, dtype=np.float64)
@@ -221,6 +244,30 @@ class ControlTick:
         """The (joint state, skin) messages of the last tick that commanded."""
         self.reset_now = False
         """Whether the last tick started an episode."""
+        self.unpaired = 0
+        """Commanding ticks whose skin frame was stamped with another instant than their joint state."""
+        self.held = ""
+        """Why the last tick did not command: 'stale' (old data), 'episode' (waiting for the new
+        episode's first state), 'answered' (no joint state since the last command), '' (it commanded)."""
+        self._skin_seen = 0
+
+    def paired(self) -> bool:
+        """Whether the newest skin frame is of the newest joint state's instant: the same header
+        stamp where both have one, else a frame that arrived since the last tick."""
+        joint_stamp, skin_stamp = stamp_ns(self.joints.msg), stamp_ns(self.skin.msg)
+        if joint_stamp is not None and skin_stamp is not None:
+            return skin_stamp >= joint_stamp
+        return self.skin.count > self._skin_seen
+
+    def wait_for_pair(self, deadline: float) -> None:
+        """Wait until `paired()` or until `deadline` (monotonic s)."""
+        while not self.paired():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            self.skin.arrived.clear()
+            if not self.paired():
+                self.skin.arrived.wait(left)
 
     def check_inputs(self) -> None:
         """Decode the newest joint state and skin frame and run them through the calibration:
@@ -240,15 +287,21 @@ class ControlTick:
                          f"stale skin: no frame newer than {1e3 * max_age:.0f} ms on "
                          f"{self.cfg.tactile_topic}; holding position (no commands)")
         self.reset_now = False
+        self.held = ""
         new_episode = episode_msg is not None and int(episode_msg.data) != self.episode
         if new_episode and int(episode_msg.data) < 0:
             self.stop = True
             return None
         if not (joints_ok and skin_ok):
+            self.held = "stale"
+            return None
+        if new_episode and joint_t < episode_t:  # the episode's first joint state is still to come
+            self.held = "episode"
+            return None
+        if self.used is not None and joint_msg is self.used[0]:  # each state is answered once, as in the env
+            self.held = "answered"
             return None
         if new_episode:
-            if joint_t < episode_t:  # the episode's first joint state is still to come
-                return None
             self.episode = int(episode_msg.data)
             self.reset_now = True
         pos, vel = decode_joint_state(joint_msg, self.cfg.joint_names)
@@ -256,6 +309,9 @@ class ControlTick:
             self.controller.reset(pos)
         readings = self.processor(decode_tactile(skin_msg, self.cfg.tactile_fields))
         self.used = (joint_msg, skin_msg)
+        self._skin_seen = self.skin.count
+        joint_stamp, skin_stamp = stamp_ns(joint_msg), stamp_ns(skin_msg)
+        self.unpaired += joint_stamp is not None and skin_stamp is not None and joint_stamp != skin_stamp
         return self.controller.step(pos, vel, readings)
 
 
@@ -277,6 +333,8 @@ class LoopStats:
     """Per command: from the tick's start to the command's publication."""
     slow_ticks: list[tuple[int, float, float]] = field(default_factory=list)
     """(tick, ms late to start, ms computing) of ticks whose command came more than a period late."""
+    unpaired: int = 0
+    """Commands computed from a joint state and a skin frame stamped with different instants."""
 
     @property
     def missed(self) -> int:
@@ -286,7 +344,7 @@ class LoopStats:
         def pct(values, q):
             return round(1e3 * float(np.percentile(values, q)), 3) if values else None
         return {"ticks": self.ticks, "commands": self.commands, "missed_ticks": self.missed, "held_stale": self.held,
-                "overruns": self.overruns, "episodes": self.episodes,
+                "overruns": self.overruns, "episodes": self.episodes, "unpaired_skin": self.unpaired,
                 "tick_to_command_ms": {"p50": pct(self.latency_s, 50), "p99": pct(self.latency_s, 99),
                                        "max": pct(self.latency_s, 100)},
                 "compute_ms": {"p50": pct(self.compute_s, 50), "p99": pct(self.compute_s, 99),
@@ -320,15 +378,22 @@ class _Node:
 
         self.JointState, self.Int32 = JointState, Int32
 
-    def subscribe(self, topic: str, msg_type: type, callback: Callable[[Any], None]) -> None:
+    def subscribe(self, topic: str, msg_type: type, callback: Callable[[Any], None], queue_size: int = 1) -> None:
+        """queue_size 1: only the newest message matters (messages that come in a burst are dropped
+        but the last); more: the callback sees every message of a burst (to count them)."""
         if self.cfg.ros_version == 1:
-            self._ros.Subscriber(topic, msg_type, callback, queue_size=1, tcp_nodelay=True)
+            self._ros.Subscriber(topic, msg_type, callback, queue_size=queue_size, tcp_nodelay=True)
         else:
-            self._node.create_subscription(msg_type, topic, callback, 1)
+            self._node.create_subscription(msg_type, topic, callback, queue_size)
 
     def publisher(self, topic: str, msg_type: type, latch: bool = False) -> Callable[[Any], None]:
+        """ROS 1: synchronous unless latched (queue_size None: the message is on the socket when
+        publish returns, with no hand-over to rospy's queue thread and the scheduling delay it costs)."""
         if self.cfg.ros_version == 1:
-            return self._ros.Publisher(topic, msg_type, queue_size=1, latch=latch, tcp_nodelay=True).publish
+            with warnings.catch_warnings():  # rospy warns about queue_size None, which is meant here
+                warnings.simplefilter("ignore", SyntaxWarning)
+                return self._ros.Publisher(topic, msg_type, queue_size=1 if latch else None, latch=latch,
+                                           tcp_nodelay=True).publish
         return self._node.create_publisher(msg_type, topic, 1).publish
 
     def stamp(self, msg: Any) -> Any:
@@ -338,16 +403,38 @@ class _Node:
             msg.header.stamp = self._node.get_clock().now().to_msg()
         return msg
 
-    def joint_state(self, position: np.ndarray, velocity: np.ndarray | None = None) -> Any:
+    def set_stamp(self, msg: Any, ns: int) -> Any:
+        """Set a message's header stamp to `ns` nanoseconds (ROS time)."""
+        secs, nsecs = divmod(int(ns), 1_000_000_000)
+        if self.cfg.ros_version == 1:
+            msg.header.stamp = self._ros.Time(secs, nsecs)
+        else:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = secs, nsecs
+        return msg
+
+    def joint_state(self, position: np.ndarray, velocity: np.ndarray | None = None, stamp: int | None = None) -> Any:
+        """A JointState of our joints; stamped `stamp` (ns) if given, else now."""
         msg = self.JointState()
         msg.name = list(self.cfg.joint_names)
-        msg.position = [float(x) for x in position]
+        msg.position = position.tolist() if isinstance(position, np.ndarray) else [float(x) for x in position]
         if velocity is not None:
-            msg.velocity = [float(x) for x in velocity]
-        return self.stamp(msg)
+            msg.velocity = velocity.tolist() if isinstance(velocity, np.ndarray) else [float(x) for x in velocity]
+        return self.stamp(msg) if stamp is None else self.set_stamp(msg, stamp)
 
     def ok(self) -> bool:
         return not self._ros.is_shutdown() if self.cfg.ros_version == 1 else self._ros.ok()
+
+    def wait_for_subscriber(self, publish: Callable[[Any], None], topic: str, timeout: float) -> None:
+        """Wait until someone listens to `publish`'s topic (ROS 1), so the first command is not lost."""
+        if self.cfg.ros_version != 1:
+            return
+        publisher = getattr(publish, "__self__", None)
+        deadline = time.monotonic() + timeout
+        while publisher is not None and publisher.get_num_connections() == 0:
+            if time.monotonic() > deadline or not self.ok():
+                raise TimeoutError(f"nobody subscribes to {topic} within {timeout:.0f} s: "
+                                   "is the hand's driver running?")
+            time.sleep(0.01)
 
     def spin_once(self) -> None:
         if self.cfg.ros_version == 2:
@@ -386,12 +473,21 @@ class _Node:
                 self._node.destroy_node()
                 self._ros.shutdown()
 
-    def loop_on(self, latest: Latest, tick: Callable[[float], bool], stats: LoopStats | None = None) -> None:
+    def loop_on(self, latest: Latest, tick: Callable[[float], bool], stats: LoopStats | None = None,
+                pair: Callable[[float], None] | None = None) -> None:
         """Call tick(arrival time) after each new message of `latest`, at most rate_hz; when none
-        comes for 1.5 periods, tick anyway (the tick sees stale data and holds). Gaps of more
-        than 1.5 periods between ticks count as overruns in stats."""
+        comes for 1.5 periods, tick anyway (the tick sees stale data and holds).
+
+        Messages closer than 0.75 periods to the last one ticked on are skipped (a driver that
+        publishes faster than the control rate), judged by their header stamps where they have
+        them (the hand's clock, free of transport jitter), else by arrival. Periods between two
+        ticked messages without a message count as overruns in stats. `pair(deadline)`, if
+        given, is called before a tick on a new message (it waits for the message's partners).
+        """
         period = self.cfg.period
-        last = time.monotonic()
+        last = time.monotonic()  # the last tick: for the timeout
+        last_fresh: float | None = None  # arrival of the last message ticked on
+        last_stamp: int | None = None
         seen = latest.count
         while self.ok():
             deadline = last + 1.5 * period
@@ -402,13 +498,22 @@ class _Node:
             now = time.monotonic()
             fresh = latest.count != seen
             seen = latest.count
-            if fresh and now - last < 0.75 * period:
-                continue  # faster than the control rate: wait for the next one
-            gap = now - last
-            if gap > 1.5 * period and stats is not None and stats.commands:
-                stats.overruns += int(round(gap / period)) - 1
+            stamp = stamp_ns(latest.msg) if fresh else None
+            if fresh:
+                if stamp is not None and last_stamp is not None:
+                    gap = (stamp - last_stamp) * 1e-9
+                else:
+                    gap = np.inf if last_fresh is None else now - last_fresh
+                if gap < 0.75 * period:
+                    continue  # faster than the control rate: wait for the next one
+                if np.isfinite(gap) and gap > 1.5 * period and stats is not None and stats.commands:
+                    stats.overruns += int(round(gap / period)) - 1
+                last_stamp, last_fresh = stamp, now
             last = now
-            if tick(latest.stamp if fresh else now) is False:
+            arrived = latest.stamp if fresh else now
+            if fresh and pair is not None:
+                pair(arrived + self.cfg.pair_window_s)
+            if tick(arrived) is False:
                 break
 
     def shutdown(self, reason: str) -> None:
@@ -431,9 +536,12 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
     node.wait_for(f"joint state on {cfg.joint_state_topic}", tick.joints, cfg.startup_timeout_s)
     node.wait_for(f"skin frame on {cfg.tactile_topic}", tick.skin, cfg.startup_timeout_s)
     tick.check_inputs()  # wrong names, patch sizes, calibration: fail before any command
+    node.wait_for_subscriber(publish, cfg.joint_cmd_topic, cfg.startup_timeout_s)
     pos, vel = decode_joint_state(tick.joints.msg, cfg.joint_names)
     controller.warm_up(pos, vel, processor(decode_tactile(tick.skin.msg, cfg.tactile_fields)))
     log.info("joint states and skin frames check out; controlling at %.0f Hz", cfg.rate_hz)
+    gc.collect()
+    gc.freeze()  # what is loaded stays out of the collector's scans: shorter pauses on ticks
     bag = _RunRecorder(record, cfg, tactile_cls) if record else None
     stats = LoopStats()
     start = None
@@ -450,9 +558,10 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
         if tick.stop or began > end:
             return False
         if targets is None:
-            stats.held += stats.commands > 0
+            stats.held += stats.commands > 0 and tick.held == "stale"
         else:
-            msg = node.joint_state(targets)
+            assert tick.used is not None
+            msg = node.joint_state(targets, stamp=stamp_ns(tick.used[0]))  # the state it answers
             publish(msg)
             done = time.monotonic()
             stats.commands += 1
@@ -472,8 +581,9 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
         if cfg.clock == "timer":
             node.loop(step, start, stats)
         else:
-            node.loop_on(tick.joints, step, stats)
+            node.loop_on(tick.joints, step, stats, pair=tick.wait_for_pair)
     finally:
+        stats.unpaired = tick.unpaired
         if bag is not None:
             bag.close()
         if stats_path:

@@ -2,13 +2,20 @@
 
 `tacgnn real-hand sim-hand` runs one Baoding env in real time and speaks the driver's
 part: joint states at the control rate on the joint-state topic, one skin message per
-control step (one raw array per patch), joint commands in. Each control period it
-applies the newest command (or holds the last one), steps the env one control step and
-publishes what the hand then measures. Episodes end as in the env (success, a ball
-falling, timeout); the env resets and the new episode number goes out on the episode
-topic, so `tacgnn real-hand run` restarts its episode as the env would. After the last
-episode it publishes -1 (the controller stops) and writes a summary (success rate as
-`tacgnn evaluate` counts it).
+control step (one raw array per patch), joint commands in. Each control period, at the
+period's boundary, it applies the newest command (or holds the last one), steps the env
+one control step and publishes what the hand then measures: the skin frame, then the
+joint state, both stamped with the same instant: state k (the k-th state published)
+k control periods after the start, so the stamp names the step. A command's stamp names
+the state it answers, so the hand counts how late each command is: lag 0 (the state
+just published, what the env does), 1 (a period late), ...
+Episodes end as in the env (success, a ball falling, timeout); the env resets, the new
+episode number goes out on the episode topic at once and the new episode's first state
+one period later (a reset takes a period, so the controller has the number before the
+state), and `tacgnn real-hand run` restarts its episode as the env would; commands that
+answer a state of an earlier episode are ignored. After the last episode it publishes -1
+(the controller stops) and writes a summary (success rate as `tacgnn evaluate` counts
+it, the command lags, the hand's state-to-command response times).
 
 What a real hand adds can be switched on: a transport latency, dropped joint-state or
 skin messages, noise on the joint angles and the skin, dead taxels. The skin is sent as
@@ -66,6 +73,8 @@ class SimHandConfig:
     waits for the first command."""
     wait_for_controller_s: float = 120.0
     """Give up when no command came within this time."""
+    duration_s: float = 0.0
+    """If > 0, stop after this many seconds (after the step in progress), even before `episodes`."""
 
     def __post_init__(self) -> None:
         check(self.task in ("simple", "middle", "hard"), "task", f"must be simple, middle or hard, got {self.task!r}")
@@ -75,6 +84,7 @@ class SimHandConfig:
             check(0 <= getattr(self, name) < 1, name, "must be in [0, 1)")
         check(self.joint_noise_rad >= 0 and self.skin_noise >= 0, "skin_noise", "noise must be >= 0")
         check(self.skin_gain > 0, "skin_gain", "must be positive")
+        check(self.duration_s >= 0, "duration_s", "must be >= 0 (0: no limit)")
 
 
 class DelayedPublisher:
@@ -145,32 +155,48 @@ class SimHand:
         cfg, ros, env = self.cfg, self.ros, self.env
         node = _Node(ros, "tacgnn_sim_hand")
         tactile_cls = tactile_message_class(ros)
+        skin_stamped = "header" in getattr(tactile_cls, "__slots__", ())
         pub_joints = node.publisher(ros.joint_state_topic, node.JointState)
         pub_skin = node.publisher(ros.tactile_topic, tactile_cls)
         pub_episode = node.publisher(ros.episode_topic, node.Int32, latch=True) if ros.episode_topic else None
-        command: dict[str, Any] = {"target": None, "count": 0}
+        period = ros.period
+        period_ns = int(round(period * 1e9))
+        base_ns = time.time_ns()  # ROS time of state 0; state k is stamped base_ns + k periods
+        published: list[float] = []  # monotonic time at which state k was handed to the publisher
+        command: dict[str, Any] = {"target": None, "count": 0, "answers": -1}
+        response_s: list[float] = []
 
         def on_command(msg):
-            from tacgnn.real.ros import decode_joint_state
+            from tacgnn.real.ros import decode_joint_state, stamp_ns
 
-            command["target"] = decode_joint_state(msg, ros.joint_names)[0]
+            now = time.monotonic()
+            stamp = stamp_ns(msg)
+            k = -1 if stamp is None else int(round((stamp - base_ns) / period_ns))
+            command["target"], command["answers"] = decode_joint_state(msg, ros.joint_names)[0], k
             command["count"] += 1
+            if 0 <= k < len(published):
+                response_s.append(now - published[k])
 
-        node.subscribe(ros.joint_cmd_topic, node.JointState, on_command)
+        node.subscribe(ros.joint_cmd_topic, node.JointState, on_command, queue_size=10)  # count every command
         send = DelayedPublisher(cfg.latency_s)
         low, high = env.joint_low, env.joint_high
 
         def publish_state(readings: np.ndarray) -> None:
-            q = env.joint_pos[0] + cfg.joint_noise_rad * self.rng.standard_normal(16) if cfg.joint_noise_rad \
-                else env.joint_pos[0]
-            if self.rng.random() >= cfg.drop_joint_states:
-                send(pub_joints, node.joint_state(q, env.joint_vel[0]))
+            """The skin frame, then the joint state of state k = len(published), both stamped k."""
+            stamp = base_ns + len(published) * period_ns
+            published.append(time.monotonic())
             raw = self.raw_skin(readings)
             if self.rng.random() >= cfg.drop_tactile:
                 msg = tactile_cls()
+                if skin_stamped:
+                    node.set_stamp(msg, stamp)
                 for i, attr in enumerate(self.fields):
                     setattr(msg, attr, raw[self.offsets[i]:self.offsets[i + 1]].tolist())
                 send(pub_skin, msg)
+            q = env.joint_pos[0] + cfg.joint_noise_rad * self.rng.standard_normal(16) if cfg.joint_noise_rad \
+                else env.joint_pos[0]
+            if self.rng.random() >= cfg.drop_joint_states:
+                send(pub_joints, node.joint_state(q, env.joint_vel[0], stamp=stamp))
 
         obs, _ = env.reset(seed=cfg.seed)
         if cfg.rest_steps:  # the balls far away: a skin at rest
@@ -180,11 +206,12 @@ class SimHand:
         readings = env.tactile_readings()[0]
         episode = 0
         hold = env.last_action[0].copy()
-        period = ros.period
         next_time = time.monotonic()
         warmup = max(1, int(round(cfg.start_delay_s / period)))
         steps = late = 0
+        lags: dict[str, int] = {}
         t_start = time.monotonic()
+        end = t_start + cfg.duration_s if cfg.duration_s > 0 else np.inf
 
         def tick_wait() -> None:
             nonlocal next_time, late
@@ -194,6 +221,14 @@ class SimHand:
             elif -delay > period:
                 late += 1
             next_time += period
+
+        def start_episode() -> int:
+            """The episode's number now, its first state at the next period boundary; returns that state's index."""
+            if pub_episode is not None:
+                send(pub_episode, node.Int32(data=episode))
+            tick_wait()
+            publish_state(env.tactile_readings()[0])
+            return len(published) - 1
 
         try:
             for _ in range(cfg.rest_steps):
@@ -207,20 +242,23 @@ class SimHand:
                 tick_wait()
                 publish_state(readings)
                 waited += 1
-            if not cfg.rest_steps and node.ok():  # the episode's number, then its first state
-                tick_wait()
-                if pub_episode is not None:
-                    send(pub_episode, node.Int32(data=episode))
-                publish_state(readings)
-            command["target"] = None  # commands from before the episode started do not count
+            first = start_episode() if not cfg.rest_steps and node.ok() else 0
             while node.ok() and not cfg.rest_steps:
                 tick_wait()
-                if command["target"] is not None:
+                newest = len(published) - 1
+                if command["target"] is not None and command["answers"] >= first:
+                    lag = newest - command["answers"]
+                    key = str(lag) if lag < 3 else "3+"
+                    lags[key] = lags.get(key, 0) + 1
                     hold = target_to_action(np.clip(command["target"], low, high), low, high)
-                    command["target"] = None
+                else:
+                    lags["none"] = lags.get("none", 0) + 1
+                command["target"] = None
                 obs, _, terminated, truncated, info = env.step(hold[None])
                 steps += 1
                 if not (terminated[0] or truncated[0]):
+                    if time.monotonic() > end:
+                        break
                     publish_state(info["tactile"][0])
                     continue
                 self.results.append({"episode": episode, "success": bool(info["success"][0]),
@@ -228,19 +266,19 @@ class SimHand:
                                      "steps": int(info["episode_steps"][0]),
                                      "angle_deg": float(info["angle_deg"][0])})
                 episode += 1
-                if episode >= cfg.episodes:
+                if episode >= cfg.episodes or time.monotonic() > end:
                     break
                 hold = env.last_action[0].copy()  # the env reset: its start pose
-                command["target"] = None
-                if pub_episode is not None:  # the new episode's number, then its first state
-                    send(pub_episode, node.Int32(data=episode))
-                publish_state(env.tactile_readings()[0])
+                first = start_episode()
         finally:
             if pub_episode is not None and node.ok():
                 send(pub_episode, node.Int32(data=-1))
             time.sleep(0.5 + cfg.latency_s)
             send.close()
         summary = self.summary(steps, late, command["count"], time.monotonic() - t_start)
+        summary["command_lag_steps"] = lags
+        summary["response_ms"] = {q: round(1e3 * float(np.percentile(response_s, v)), 3) if response_s else None
+                                  for q, v in (("p50", 50), ("p99", 99), ("max", 100))}
         if summary_path:
             Path(summary_path).parent.mkdir(parents=True, exist_ok=True)
             Path(summary_path).write_text(json.dumps(summary, indent=1))

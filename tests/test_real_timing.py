@@ -1,0 +1,140 @@
+"""The control loop's timing rules without ROS: stamps, joint state and skin of one instant,
+one command per state of the hand, no state dropped for transport jitter."""
+
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+
+from tacgnn.real import ros
+
+PERIOD_NS = 20_000_000
+
+
+def stamped(ns: int | None, **fields) -> SimpleNamespace:
+    """A message with a ROS 1 header stamped `ns` (None: a message without a header)."""
+    if ns is None:
+        return SimpleNamespace(**fields)
+    secs, nsecs = divmod(ns, 1_000_000_000)
+    return SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(secs=secs, nsecs=nsecs)), **fields)
+
+
+class CountingController:
+    """A controller stand-in that counts its steps (the env steps once per state)."""
+
+    def __init__(self):
+        self.steps, self.resets = 0, 0
+
+    def reset(self, _pos):
+        self.resets += 1
+
+    def step(self, pos, _vel, _skin):
+        self.steps += 1
+        return np.asarray(pos)
+
+
+def make_tick(cfg: ros.RosConfig) -> ros.ControlTick:
+    return ros.ControlTick(cfg, CountingController(), lambda patches: np.zeros(1, np.float32))
+
+
+def joint_state(ns: int | None) -> SimpleNamespace:
+    return stamped(ns, name=list(ros.ALLEGRO_JOINT_NAMES), position=[0.1] * 16, velocity=[0.0] * 16)
+
+
+def skin(ns: int | None, cfg: ros.RosConfig) -> SimpleNamespace:
+    return stamped(ns, **{attr: [0.0] for _, attr in cfg.tactile_fields})
+
+
+def test_stamps_in_nanoseconds_ros1_and_ros2():
+    assert ros.stamp_ns(stamped(3_000_000_007)) == 3_000_000_007
+    ros2 = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=2, nanosec=5)))
+    assert ros.stamp_ns(ros2) == 2_000_000_005
+    assert ros.stamp_ns(stamped(None)) is None
+    assert ros.stamp_ns(stamped(0)) is None  # a driver that does not stamp
+
+
+def test_the_tick_waits_for_the_skin_of_its_joint_states_instant():
+    cfg = ros.RosConfig()
+    tick = make_tick(cfg)
+    t = 10 * PERIOD_NS
+    tick.joints(joint_state(t))
+    tick.skin(skin(t - PERIOD_NS, cfg))  # the frame of the step before
+    assert not tick.paired()
+    threading.Timer(0.003, tick.skin, (skin(t, cfg),)).start()
+    began = time.monotonic()
+    tick.wait_for_pair(began + 0.5)
+    assert tick.paired() and time.monotonic() - began < 0.4
+    assert tick() is not None and tick.unpaired == 0
+    # the frame does not come: the tick goes on after the window with the newest one, and counts it
+    tick.joints(joint_state(t + PERIOD_NS))
+    began = time.monotonic()
+    tick.wait_for_pair(began + cfg.pair_window_s)
+    assert time.monotonic() - began >= cfg.pair_window_s
+    assert tick() is not None and tick.unpaired == 1
+
+
+def test_without_stamps_a_frame_newer_than_the_last_tick_pairs():
+    cfg = ros.RosConfig()
+    tick = make_tick(cfg)
+    tick.joints(joint_state(None))
+    tick.skin(skin(None, cfg))
+    assert tick.paired() and tick() is not None
+    tick.joints(joint_state(None))
+    assert not tick.paired()  # the skin frame was used by the last tick
+    tick.skin(skin(None, cfg))
+    assert tick.paired()
+
+
+def test_a_state_is_answered_once():
+    cfg = ros.RosConfig()
+    tick = make_tick(cfg)
+    tick.joints(joint_state(PERIOD_NS))
+    tick.skin(skin(PERIOD_NS, cfg))
+    assert tick() is not None
+    assert tick() is None and tick.held == "answered"  # a timeout tick on the same state
+    assert tick.controller.steps == 1
+
+
+def fake_node(cfg: ros.RosConfig, running: threading.Event) -> ros._Node:
+    """The loop of `_Node` without ROS behind it."""
+    node = ros._Node.__new__(ros._Node)
+    node.cfg = cfg
+    node.ok = running.is_set
+    node.spin_once = lambda: None
+    return node
+
+
+def test_every_stamped_state_is_ticked_despite_arrival_jitter():
+    """States one period apart by their stamps but arriving 0.3 periods late or early (a loaded hand
+    or network): none is skipped as 'faster than the control rate'; a state the hand never sent is
+    an overrun. (At 10 Hz, so that a loaded test machine's scheduling does not add jitter of its own.)"""
+    cfg = ros.RosConfig(rate_hz=10.0)
+    period_ns = int(1e9 / cfg.rate_hz)
+    latest = ros.Latest()
+    running = threading.Event()
+    running.set()
+    ticked: list[int] = []
+    stats = ros.LoopStats(commands=1)
+    sent = [k for k in range(12) if k != 7]  # state 7 is lost
+    jitter = cfg.period * np.array([0.0, 0.3, -0.3, 0.3, 0.0, -0.3, 0.3, 0.0, -0.3, 0.0, 0.3, 0.0])
+
+    def hand():
+        start = time.monotonic() + 0.05
+        for k in sent:
+            time.sleep(max(0.0, start + cfg.period * k + jitter[k] - time.monotonic()))
+            latest(joint_state(period_ns * (k + 1)))
+        time.sleep(0.05)
+        running.clear()
+
+    def tick(_arrived):
+        if latest.count and (not ticked or ticked[-1] != latest.count):
+            ticked.append(latest.count)
+        return True
+
+    thread = threading.Thread(target=hand)
+    thread.start()
+    fake_node(cfg, running).loop_on(latest, tick, stats)
+    thread.join()
+    assert ticked == list(range(1, len(sent) + 1))  # every state, once
+    assert stats.overruns == 1
