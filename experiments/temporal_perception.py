@@ -67,8 +67,9 @@ def label(cfg) -> str:
 
 
 def touched_breakdown(pred: torch.Tensor, cfg, data: SequenceData, skin: dict, top: int = 8) -> dict:
-    """Where the touched balls' error comes from: its spread, and the RMSE by the skin patches
-    that touch the ball (activated taxels within 3 cm of its centre), the most common sets first."""
+    """Where the touched balls' error comes from: its spread, the RMSE by the skin patches that
+    touch the ball (activated taxels within 3 cm of its centre; the most common sets first), and
+    how much of the error the worst test episodes hold."""
     se, touch, _ = matched_ball_errors(pred, data, cfg.match_balls)
     layout = from_dict(SkinLayout, skin)
     names = [p.name for p in layout.patches]
@@ -84,7 +85,16 @@ def touched_breakdown(pred: torch.Tensor, cfg, data: SequenceData, skin: dict, t
         hit = torch.stack([near[:, patch == p].any(1) for p in range(len(names))], 1)
         codes.append((hit.long() << torch.arange(len(names))).sum(1))
     code = torch.stack(codes, 1)
-    keep = (data.step >= cfg.eval_from_step)[:, None] & touch
+    evaluated = data.step >= cfg.eval_from_step
+    # how concentrated the error is in a few test episodes (all balls, touched or not)
+    ep_se = torch.zeros(int(data.episode.max()) + 1).index_add_(0, data.episode[evaluated], se[evaluated].sum(1))
+    worst = ep_se.argsort(descending=True)
+    without = evaluated & (data.episode != worst[0])
+    episodes = {"worst_two_share_of_squared_error": float(ep_se[worst[:2]].sum() / ep_se.sum()),
+                "worst_episode_frames": int((evaluated & (data.episode == worst[0])).sum()),
+                "rmse_without_worst_episode_cm": float(se[without].mean().sqrt()),
+                "touched_rmse_without_worst_episode_cm": float(se[without][touch[without]].mean().sqrt())}
+    keep = evaluated[:, None] & touch
     se, code = se[keep], code[keep]
     ordered = se.sort(descending=True).values
     tail = max(1, len(ordered) // 20)
@@ -96,7 +106,8 @@ def touched_breakdown(pred: torch.Tensor, cfg, data: SequenceData, skin: dict, t
                        "rmse_cm": float(se[sel].mean().sqrt()),
                        "share_of_squared_error": float(se[sel].sum() / se.sum())})
     return {"median_cm": float(ordered.median().sqrt()), "p95_cm": float(ordered[tail - 1].sqrt()),
-            "top5pct_share_of_squared_error": float(ordered[:tail].sum() / ordered.sum()), "by_patches": groups}
+            "top5pct_share_of_squared_error": float(ordered[:tail].sum() / ordered.sum()), "by_patches": groups,
+            "episodes": episodes}
 
 
 def main() -> None:
@@ -171,7 +182,7 @@ def plot(results: dict, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(8.4, 4.0))
     for name, r in results.items():
         curve = r["by_steps_since_touch"]
         ticks = [str(b) if hi is None or hi - b == 1 else f"{b}-{hi - 1}"
@@ -186,7 +197,7 @@ def plot(results: dict, path: str) -> None:
     ax.set_xlabel("steps since the ball last touched a taxel (balls in bin)")
     ax.set_ylabel("ball position RMSE (cm)")
     ax.set_title("Blind area: error against time without contact (test episodes)", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
