@@ -28,9 +28,14 @@ frames (an epoch puts every training frame into the loss once)::
         --temporal --model mlp --epochs 20 --window 32 --burn-in 200 --set batch_size=16 lr_decay=0.85
     tacgnn train-perception --dataset data/baoding_seq2 --run runs/temporal2/mlp_single \\
         --by-episode --model mlp --epochs 20 --set batch_size=256 lr_decay=0.85
-    .venv/bin/python experiments/temporal_perception.py --dataset data/baoding_seq2 \\
+    .venv/bin/python experiments/temporal_perception.py --dataset data/baoding_seq2 --train-error \\
         --runs runs/temporal2/tacgnn32_temporal runs/temporal2/tacgnn32_single \\
-               runs/temporal2/mlp_temporal runs/temporal2/mlp_single
+               runs/temporal2/mlp_temporal runs/temporal2/mlp_single runs/temporal/final/tacgnn32_temporal
+
+The three comparison runs were trained 8 epochs, then resumed to 20 (``--resume --epochs 20``,
+same arguments otherwise; a resumed run equals an uninterrupted one). The last run was trained
+on data/baoding_seq (30,000 frames, seed 0, 30 epochs, burn-in 200) and is read on the same
+test episodes (the split depends only on the episodes and the seed).
 
 (docs/temporal_perception.json records each run's config, training time and provenance.)
 """
