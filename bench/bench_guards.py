@@ -40,8 +40,8 @@ def main() -> None:
 
         from tacgnn.envs.baoding import BaodingConfig
         from tacgnn.learning.config import PPOConfig
-        from tacgnn.learning.runner import make_runner
         from tacgnn.learning.rsl_env import RslBaodingEnv
+        from tacgnn.learning.runner import make_runner
 
         with contextlib.redirect_stdout(io.StringIO()):  # rsl_rl prints the models
             runner = make_runner(RslBaodingEnv(BaodingConfig(num_envs=2, tactile=False)), PPOConfig(num_envs=2))
@@ -52,7 +52,8 @@ def main() -> None:
         state = runner.alg.save()
     numel = sum(t.numel() for d in state.values() for t in _tensors(d))
     seconds = per_call(lambda: copy.deepcopy(state), 50)
-    print(f"PPO update guard: copy of {numel * 4 / 1e6:.1f} MB of models and optimiser, {seconds * 1e3:.1f} ms per update")
+    print(f"PPO update guard: copy of {numel * 4 / 1e6:.1f} MB of models and optimiser, "
+          f"{seconds * 1e3:.1f} ms per update")
 
 
 def _tensors(d):

@@ -18,9 +18,9 @@ import torch
 
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.rsl_env import RslBaodingEnv
 from tacgnn.learning.runner import make_runner
 from tacgnn.learning.train import seed_everything
-from tacgnn.learning.rsl_env import RslBaodingEnv
 
 
 def bench(num_envs: int, iters: int, tactile: bool) -> dict:

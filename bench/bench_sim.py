@@ -14,8 +14,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.scripted import FingerWave
 
@@ -90,7 +88,8 @@ def main() -> None:
     print(" | ".join(keys))
     fmt = {"env/physics": "{:.2f}"}
     for row in rows:
-        print(" | ".join(fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k]) for k in keys))
+        cells = (fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k]) for k in keys)
+        print(" | ".join(cells))
 
 
 if __name__ == "__main__":

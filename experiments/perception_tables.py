@@ -185,7 +185,8 @@ def main() -> None:
              + (", the paper's loop and TacGNN" if args.paper_setup else
                 f"; TacGNN node input position + {example.model.force_feature} force, readout "
                 f"`pool={example.model.pool}`") + ". "
-             f"Datasets: Baoding {args.baoding_samples} frames of `{data['baoding'].relative_to(ROOT) if data['baoding'].is_absolute() else data['baoding']}`"
+             f"Datasets: Baoding {args.baoding_samples} frames of "
+             f"`{data['baoding'].relative_to(ROOT) if data['baoding'].is_absolute() else data['baoding']}`"
              f", grasps {args.grasp_samples} per object "
              "(the paper: 1,000,000 steps and 200,000 grasps). Ours: mean ± std over seeds.", ""]
 

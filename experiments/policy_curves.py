@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-
 Scalars = dict[str, dict[int, tuple[float, float]]]
 
 
@@ -122,7 +121,8 @@ def main() -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    print(f"{'run':22s} {'iters':>6s} {'50% at (M steps, min)':>22s} {'90% at (M steps, min)':>22s} {'final':>6s} {'perception cm':>14s}")
+    print(f"{'run':22s} {'iters':>6s} {'50% at (M steps, min)':>22s} {'90% at (M steps, min)':>22s} "
+          f"{'final':>6s} {'perception cm':>14s}")
     for item in args.runs:
         label, _, paths = item.partition("=")
         if not paths:

@@ -38,7 +38,10 @@ def run(name: str, seed: int, dataset: Path, epochs: int) -> dict:
     run_dir = ROOT / "runs" / "table2" / f"{name}_s{seed}"
     ckpt = run_dir / "checkpoint.pt"
     if not (ckpt.exists() and load_checkpoint(ckpt)["epoch"] == epochs - 1):
-        train(cfg, dataset, run_dir, resume=ckpt.exists(), log=lambda line: print(f"[{name} s{seed}] {line}", flush=True))
+        def log(line: str) -> None:
+            print(f"[{name} s{seed}] {line}", flush=True)
+
+        train(cfg, dataset, run_dir, resume=ckpt.exists(), log=log)
     final = load_checkpoint(ckpt)["history"][-1]
     test = evaluate(ckpt, dataset)
     palm = patch_loss(ckpt, dataset, "palm")
@@ -60,12 +63,13 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=10)
     ap.add_argument("--models", nargs="+", default=list(PAPER), choices=list(PAPER))
     args = ap.parse_args()
-    rows = ["| model | train (ours) | test (ours) | touched | untouched | palm lost (x) | train (paper) | test (paper) |",
+    rows = ["| model | train (ours) | test (ours) | touched | untouched | palm lost (x) | train (paper) "
+            "| test (paper) |",
             "|---|---|---|---|---|---|---|---|"]
     for name in args.models:
         res = [run(name, s, args.dataset, args.epochs) for s in range(args.seeds)]
 
-        def cell(key: str) -> str:
+        def cell(key: str, res: list = res) -> str:
             v = [r[key] for r in res]
             return f"{np.mean(v):.3f}" + (f" ± {np.std(v):.3f}" if len(v) > 1 else "")
 

@@ -149,7 +149,7 @@ def test_dropped_ball_triggers_the_fall_penalty():
 def test_timeout_truncates_with_penalty():
     env = make(2, max_episode_steps=5)
     env.reset(seed=0)
-    for t in range(5):
+    for _ in range(5):
         _, reward, terminated, truncated, info = env.step(hold(env))
     assert truncated.all() and not terminated.any()
     assert np.all(info["reward_terms"]["timeout"] == -50.0)

@@ -10,11 +10,10 @@ from dataclasses import replace
 
 import numpy as np
 import torch
+from test_ppo import ENV, ppo
 
 from tacgnn.learning.checkpoint import list_checkpoints, load_checkpoint
 from tacgnn.learning.train import train
-
-from test_ppo import ENV, ppo
 
 ITERATIONS = 10
 # the same run in a child process; it prints a line after every iteration's checkpoint
@@ -140,7 +139,8 @@ def test_perceived_mode_resume_is_bit_identical(tmp_path, monkeypatch):
     a, b = load_checkpoint(straight), load_checkpoint(resumed)
     assert b["iteration"] == 6 and b["perception"]["updates"] == a["perception"]["updates"] == 1 + 3
     _assert_identical(a, b)
-    frames = [torch.load(frames_path(run, 6), weights_only=True) for run in (tmp_path / "straight", tmp_path / "resumed")]
+    runs = (tmp_path / "straight", tmp_path / "resumed")
+    frames = [torch.load(frames_path(run, 6), weights_only=True) for run in runs]
     assert frames[0]["frames"]["size"] == 64  # the buffer wrapped
     _assert_identical(*frames, where="frames")
     # only the newest checkpoint keeps its frames

@@ -7,14 +7,13 @@ from dataclasses import replace
 
 import pytest
 import torch
+from test_ppo import ENV, ppo
 
 from tacgnn import cli
 from tacgnn.config import to_dict
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning.checkpoint import CheckpointError, check_policy_fits, list_checkpoints
 from tacgnn.learning.train import train
-
-from test_ppo import ENV, ppo
 
 TINY = ["actor_hidden_dims=[16]", "critic_hidden_dims=[16]", "num_envs=2", "num_mini_batches=2"]
 

@@ -5,10 +5,10 @@ import pytest
 
 from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingConfig
-from tacgnn.learning.evaluate import evaluate
-from tacgnn.learning.online_perception import OnlinePerceptionConfig
 from tacgnn.learning.checkpoint import load_checkpoint
 from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.evaluate import evaluate
+from tacgnn.learning.online_perception import OnlinePerceptionConfig
 from tacgnn.learning.policy import load_perception
 from tacgnn.learning.train import train
 from tacgnn.perception.models import PerceptionModelConfig
@@ -188,7 +188,11 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
 
     call = OnlinePerception.__call__
     monkeypatch.setattr(evaluation, "load_policy", spying_load_policy)
-    monkeypatch.setattr(OnlinePerception, "__call__", lambda self, *a: predicted.append(call(self, *a)) or predicted[-1])
+    def recording_call(self, *a):
+        predicted.append(call(self, *a))
+        return predicted[-1]
+
+    monkeypatch.setattr(OnlinePerception, "__call__", recording_call)
     out = evaluation.evaluate(gt_policy, "simple", episodes=2, num_envs=2, perception_from=perc)
     assert out["episodes"] == 2 and len(seen) > 1
     # every ball position the policy read is one the perception predicted, up to which ball is which

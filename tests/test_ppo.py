@@ -12,14 +12,14 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
-from tacgnn.learning.evaluate import evaluate, seed_bootstrap_difference, wilson_interval
 from tacgnn.files import FileProblem
 from tacgnn.learning.checkpoint import CheckpointError, list_checkpoints, load_checkpoint
 from tacgnn.learning.config import PPOConfig
+from tacgnn.learning.evaluate import evaluate, seed_bootstrap_difference, wilson_interval
 from tacgnn.learning.policy import load_policy
+from tacgnn.learning.rsl_env import RslBaodingEnv
 from tacgnn.learning.runner import Runner, make_runner
 from tacgnn.learning.train import seed_everything, train
-from tacgnn.learning.rsl_env import RslBaodingEnv
 
 # Short episodes so that resets, time-outs and the episode log all happen in a few iterations.
 ENV = BaodingConfig(tactile=False, max_episode_steps=12)
@@ -286,7 +286,8 @@ def test_non_finite_gradient_rolls_the_update_back_and_names_it(run2, tmp_path, 
 
     monkeypatch.setattr(PPO, "update", recording_update)
     monkeypatch.setattr(torch.nn.utils, "clip_grad_norm_", poisoned_clip)
-    with pytest.raises(FloatingPointError, match=r"PPO update 4: non-finite gradient .*\(actor .*rolled back.*model_000002"):
+    message = r"PPO update 4: non-finite gradient .*\(actor .*rolled back.*model_000002"
+    with pytest.raises(FloatingPointError, match=message):
         train(ENV, ppo(4), resumed, resume=True)
     alg, before = seen[-1]
     after = alg.save()
@@ -296,7 +297,8 @@ def test_non_finite_gradient_rolls_the_update_back_and_names_it(run2, tmp_path, 
     for i, state in before["optimizer_state_dict"]["state"].items():
         assert all(torch.equal(state[k], after["optimizer_state_dict"]["state"][i][k]) for k in state)
     assert [p.name for p in list_checkpoints(resumed)] == ["model_000001.pt", "model_000002.pt"]
-    assert all(torch.isfinite(t).all() for t in load_checkpoint(resumed / "model_000002.pt")["actor_state_dict"].values())
+    actor = load_checkpoint(resumed / "model_000002.pt")["actor_state_dict"]
+    assert all(torch.isfinite(t).all() for t in actor.values())
 
 
 def test_failed_save_leaves_no_partial_file(run2, tmp_path, monkeypatch):

@@ -11,8 +11,7 @@ import torch
 from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv
-from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics
-from tacgnn.real import ros
+from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics, ros
 
 torch.set_num_threads(1)
 

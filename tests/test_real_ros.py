@@ -100,7 +100,8 @@ def calibration(ros_env, policy, tmp_path_factory):
 
 def run_pair(env, tmp: Path, calibration: Path, policy: Path, episodes: int = 2, hand_args=(),
              run_args=()) -> tuple[dict, dict, str]:
-    hand = tacgnn(env, "sim-hand", "--episodes", str(episodes), "--summary", str(tmp / "hand.json"), *hand_args, policy=policy)
+    hand = tacgnn(env, "sim-hand", "--episodes", str(episodes), "--summary", str(tmp / "hand.json"), *hand_args,
+                  policy=policy)
     time.sleep(0.5)
     ctrl = tacgnn(env, "run", "--calibration", str(calibration), "--stats", str(tmp / "stats.json"), *run_args,
                   policy=policy)

@@ -5,8 +5,14 @@ import pytest
 
 from tacgnn.cli import main as cli_main
 from tacgnn.hand.skin_layout import default_skin
-from tacgnn.real.skin import (CalibrationError, SkinCalibration, SkinProcessor, calibrate, load_raw_frames,
-                              patch_gain_from_load)
+from tacgnn.real.skin import (
+    CalibrationError,
+    SkinCalibration,
+    SkinProcessor,
+    calibrate,
+    load_raw_frames,
+    patch_gain_from_load,
+)
 
 LAYOUT = default_skin()
 T = LAYOUT.num_taxels

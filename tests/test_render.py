@@ -11,8 +11,15 @@ import pytest  # noqa: E402
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv  # noqa: E402
 from tacgnn.hand.skin_layout import SkinLayout, default_skin  # noqa: E402
 from tacgnn.tools.render import (  # noqa: E402
-    RenderingUnavailable, SkinPanel, figure_to_array, frame_with_skin, render_episode,
-    save_skin_picture, skin_map, skin_map_image)
+    RenderingUnavailable,
+    SkinPanel,
+    figure_to_array,
+    frame_with_skin,
+    render_episode,
+    save_skin_picture,
+    skin_map,
+    skin_map_image,
+)
 
 
 @pytest.fixture(scope="module")

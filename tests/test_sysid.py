@@ -7,10 +7,8 @@ from tacgnn.cli import main as cli_main
 from tacgnn.config import ConfigError, load_yaml
 from tacgnn.envs.baoding import BAODING_RANGES, BaodingConfig
 from tacgnn.hand.allegro import JOINT_NAMES, HandConfig
-from tacgnn.tools.joint_recording import (JointRecording, RecordingError, csv_columns, load_recording,
-                                          save_recording)
-from tacgnn.tools.sysid import (StepProtocol, StepReplay, SysIdConfig, SysIdGrid, identify, make_recording,
-                                write_outputs)
+from tacgnn.tools.joint_recording import JointRecording, RecordingError, csv_columns, load_recording, save_recording
+from tacgnn.tools.sysid import StepProtocol, StepReplay, SysIdConfig, SysIdGrid, identify, make_recording, write_outputs
 
 GRID = SysIdGrid()  # the authors' {1, 3, 5} x {0, 0.1, 0.5}
 CONTACT_FREE = StepProtocol(levels_deg=(0.0, 5.0, 10.0, 20.0, 30.0))

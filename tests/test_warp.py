@@ -67,7 +67,9 @@ def test_skin_on_the_device_equals_the_compiled_skin(pair):
     sim = c.sim
     device = DeviceTactile(CFG.skin, c.model)
     for seed in (None, 7):
-        rng = (lambda: np.random.default_rng(seed)) if seed is not None else (lambda: None)
+        def rng(seed=seed):
+            return None if seed is None else np.random.default_rng(seed)  # the same noise stream for both
+
         ref = c.tactile.readings(sim.sensordata, sim.xpos, sim.xmat, rng())
         out = device.readings(sim.sensordata, sim.xpos, sim.xmat, rng())
         assert (ref > 0).sum() >= CFG.num_envs
