@@ -38,7 +38,8 @@ def test_temporal_perception_trains_in_the_loop_and_resumes_bit_for_bit(tmp_path
     assert a["perception"]["updates"] == 1 + 3  # the warm-up round, then every 2 iterations
     assert a["perception"]["env_state"].shape == (4, 16 + 6) and a["perception"]["episode_of_env"].max() >= 4
     _assert_identical(a, b)
-    frames = [torch.load(frames_path(run, 6), weights_only=True) for run in (tmp_path / "straight", tmp_path / "resumed")]
+    runs = (tmp_path / "straight", tmp_path / "resumed")
+    frames = [torch.load(frames_path(run, 6), weights_only=True) for run in runs]
     assert frames[0]["frames"]["size"] == 64 and (frames[0]["frames"]["step"] >= 1).all()
     _assert_identical(*frames, where="frames")
 
@@ -67,7 +68,7 @@ def test_state_is_per_env_and_starts_fresh_with_each_episode():
     env.reset(seed=0)
     history, outputs = {i: [] for i in range(3)}, []
     rng = np.random.default_rng(0)
-    for t in range(8):
+    for _ in range(8):
         inputs.clear()
         obs, *_, info = env.step(rng.uniform(-0.3, 0.3, (3, 16)))
         r, p, j, a = inputs[0]  # the all-env call of this step; a second call reads the reset frames
@@ -79,7 +80,7 @@ def test_state_is_per_env_and_starts_fresh_with_each_episode():
             assert torch.equal(perception.state, perception.model.initial_state(3))
             ended = {i: history[i] for i in range(3)}
             history = {i: [] for i in range(3)}
-    assert t == 7 and len(ended[0]) == 5 and len(history[0]) == 3
+    assert len(ended[0]) == 5 and len(history[0]) == 3
     with torch.no_grad():  # the last 3 steps: the episode from its first frame, fresh state
         seq = [torch.stack([f[k] for f in history[1]]).unsqueeze(0) for k in range(4)]
         expected, _ = perception.model(*seq)
@@ -102,8 +103,9 @@ def test_bad_inputs_are_named(tmp_path):
     from tacgnn.perception.train_config import PerceptionTrainConfig
 
     single = tmp_path / "single.pt"
-    torch.save({"format_version": CHECKPOINT_VERSION, "config": to_dict(PerceptionTrainConfig.for_task("baoding", "mlp")),
-                "model": {}, "dataset": {"num_taxels": 653}}, single)
+    single_config = to_dict(PerceptionTrainConfig.for_task("baoding", "mlp"))
+    torch.save({"format_version": CHECKPOINT_VERSION, "config": single_config, "model": {},
+                "dataset": {"num_taxels": 653}}, single)
     with pytest.raises(CheckpointError, match="single-frame perception checkpoint.*needs a temporal one"):
         TemporalOnlinePerception(OnlinePerceptionConfig(temporal=True, model=PerceptionModelConfig(name="mlp"),
                                                         pretrained=str(single)), skin)
@@ -111,7 +113,8 @@ def test_bad_inputs_are_named(tmp_path):
     torch.save({"format_version": CHECKPOINT_VERSION, "kind": "sequence", "config": {"temporal": True},
                 "model": {}, "dataset": {}, "epoch": 0}, temporal)
     with pytest.raises(CheckpointError, match="temporal perception checkpoint.*needs a single-frame one"):
-        OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), pretrained=str(temporal)), skin)
+        OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), pretrained=str(temporal)),
+                         skin)
 
 
 @pytest.mark.parametrize("temporal", [True, False])

@@ -60,7 +60,8 @@ def episodes(n_episodes: int, length: int | tuple[int, int], seed: int, blind: f
 
 
 def to_sequence_data(arrays: dict[str, np.ndarray]) -> SequenceData:
-    frames = TactileData(torch.from_numpy(arrays["tactile"]).float(), torch.from_numpy(arrays["taxel_pos"] * 100).float(),
+    frames = TactileData(torch.from_numpy(arrays["tactile"]).float(),
+                         torch.from_numpy(arrays["taxel_pos"] * 100).float(),
                          torch.from_numpy(arrays["ball_pos"].reshape(-1, 6) * 100).float(),
                          torch.from_numpy(arrays["joint_pos"]).float())
     return SequenceData(frames, torch.from_numpy(arrays["action"]).float(), torch.from_numpy(arrays["episode"]),
