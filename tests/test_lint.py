@@ -1,4 +1,5 @@
-"""ruff and mypy report nothing on the package, with the settings in pyproject.toml.
+"""ruff reports nothing on the package, its tests, benches and experiments, and mypy nothing on the
+package, with the settings in pyproject.toml.
 
 Both tools come with the `dev` extra; without them these tests skip and say so.
 """
@@ -13,6 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+CHECKED = ("src", "tests", "bench", "experiments")
 
 
 def _run(tool: str, *args: str) -> subprocess.CompletedProcess:
@@ -23,8 +25,8 @@ def _run(tool: str, *args: str) -> subprocess.CompletedProcess:
 
 
 def test_ruff_check_finds_nothing():
-    result = _run("ruff", "check", "--no-cache", "src")
-    assert result.returncode == 0, f"ruff check src:\n{result.stdout}{result.stderr}"
+    result = _run("ruff", "check", "--no-cache", *CHECKED)
+    assert result.returncode == 0, f"ruff check {' '.join(CHECKED)}:\n{result.stdout}{result.stderr}"
 
 
 def test_mypy_finds_nothing():
