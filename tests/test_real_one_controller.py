@@ -13,7 +13,7 @@ import pytest
 import torch
 from real_policy import blind_policy
 
-from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.envs.baoding import BaodingEnv, ordered_balls
 from tacgnn.envs.observation import action_to_target, assemble, target_to_action, track_ball_identities
 from tacgnn.real import BlindController, BlindControllerConfig
 
@@ -44,12 +44,10 @@ def policy_file(tmp_path_factory):
     return blind_policy(tmp_path_factory.mktemp("policy"))
 
 
-@pytest.fixture(scope="module")
-def controller(policy_file):
-    return BlindController(BlindControllerConfig(policy=str(policy_file)))
-
-
-def test_env_and_controller_give_the_same_observations_and_actions(controller):
+@pytest.mark.parametrize("ball_order", ["as_simulated", "canonical"])
+def test_env_and_controller_give_the_same_observations_and_actions(policy_file, ball_order):
+    controller = BlindController(BlindControllerConfig(policy=str(policy_file)))
+    controller.env_config = replace(controller.env_config, ball_order=ball_order)
     cfg = replace(controller.env_config, num_envs=1, seed=5, max_episode_steps=120)
     env = BaodingEnv(cfg, perception=FlippingPerception(controller.perception))
     controller.perception = FlippingPerception(controller.perception)
@@ -72,7 +70,7 @@ def test_env_and_controller_give_the_same_observations_and_actions(controller):
     env.sim.step = step_recording_the_skin_instant
 
     obs, _ = env.reset(seed=5)
-    compared = episodes = 0
+    compared = episodes = reordered = 0
     while compared < 40:  # whole episodes, at least 40 steps in all
         q = env.joint_pos[0].copy()
         controller.reset(q)
@@ -81,6 +79,7 @@ def test_env_and_controller_give_the_same_observations_and_actions(controller):
             skin_at = q if steps == 0 else skin_q[-1]  # at reset the skin is of the reset state
             obs_c = controller.observation(q, env.joint_vel[0], frames[-1][0], skin_joint_pos=skin_at)
             np.testing.assert_array_equal(obs_c, obs[0], err_msg=f"observation at step {steps}")
+            reordered += not np.array_equal(ordered_balls(controller.balls, cfg), controller.balls)
             action = controller.policy(obs)
             action_c = controller.act(obs_c)
             np.testing.assert_array_equal(action_c, np.clip(action[0], -1, 1), err_msg=f"action at step {steps}")
@@ -93,6 +92,8 @@ def test_env_and_controller_give_the_same_observations_and_actions(controller):
             steps += 1
         compared += steps
         episodes += 1
+    if ball_order == "canonical":  # the order was in play: on some steps it swapped the tracked balls
+        assert reordered > 0
     assert controller.perception.flips > 3  # tracking had swaps to undo (the env also perceives each last frame)
 
 

@@ -243,8 +243,6 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self._scratch = mujoco.MjData(m)  # checks spawn points for overlaps
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
-        spawn_vec = (np.subtract(*cfg.spawn_offsets[::-1])) @ self.palm_axes
-        self.spawn_angle = float(np.arctan2(spawn_vec[2], spawn_vec[1]))  # of the ball-to-ball vector at reset
         self._spawn = np.array(cfg.spawn_offsets, dtype=np.float64)  # (2, 3) ball centres at reset
         self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
         start = m.qpos0.copy()
@@ -318,11 +316,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
     def _ordered(self, balls: np.ndarray) -> np.ndarray:
         """(N, 6) ball positions in the config's `ball_order`."""
-        if self.config.ball_order == "as_simulated":
-            return balls
-        d = self.config.direction
-        start = self.spawn_angle + d * np.deg2rad(ORDER_WINDOW_START_DEG)
-        return observation.canonical_ball_order(balls, self.palm_axes[:, 1:3], start, d)
+        return ordered_balls(balls, self.config)
 
     def _observe(self, ids: EnvIds, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
         q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
@@ -629,6 +623,17 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 def _capped(degrees: np.ndarray, cap: float) -> np.ndarray:
     """Per-step turn (deg) counted at most `cap` forward (0: no cap); turning back is never capped."""
     return np.minimum(degrees, cap) if cap > 0 else degrees
+
+
+def ordered_balls(balls: np.ndarray, cfg: BaodingConfig) -> np.ndarray:
+    """(N, 6) ball positions in `cfg.ball_order`: the env and the real-hand controller both order
+    the balls here, so a policy sees them alike on either."""
+    if cfg.ball_order == "as_simulated":
+        return balls
+    axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
+    spawn = np.subtract(*cfg.spawn_offsets[::-1]) @ axes
+    start = np.arctan2(spawn[2], spawn[1]) + cfg.direction * np.deg2rad(ORDER_WINDOW_START_DEG)
+    return observation.canonical_ball_order(balls, axes[:, 1:3], float(start), cfg.direction)
 
 
 class BaodingSingleEnv(gym.Env):

@@ -29,6 +29,7 @@ import torch
 
 from tacgnn.config import check
 from tacgnn.envs import observation
+from tacgnn.envs.baoding import ordered_balls
 from tacgnn.hand.allegro import JOINT_NAMES
 from tacgnn.learning.policy import SHIPPED_POLICY
 from tacgnn.real.kinematics import TaxelKinematics
@@ -153,7 +154,7 @@ class BlindController:
                              f"negative at taxels {np.flatnonzero(s < 0)[:5].tolist()}")
         if self.last_action is None:
             self.reset(q)
-        balls = self.perceive(q, s.astype(np.float32), skin_joint_pos)
+        balls = ordered_balls(self.perceive(q, s.astype(np.float32), skin_joint_pos)[None], self.env_config)[0]
         assert self.last_action is not None  # reset() set it
         return observation.assemble(q[None], qd[None], balls[None], self.last_action[None], self.joint_low,
                                     self.joint_high)[0]
