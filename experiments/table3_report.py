@@ -5,8 +5,8 @@
 Reads results/table3/*.json (written by `experiments/baoding_pipeline.sh` through `tacgnn
 evaluate`) and prints one markdown row per run: success on Simple / Middle / Hard (with
 Wilson 95 % intervals), the 1 s hold, mean steps to success, beside the paper's figures.
-Runs of several seeds of one model are pooled, with the seed-bootstrap interval of the
-difference to TacGNN when both have more than one seed.
+Runs of several seeds of one model are pooled; every two blind runs with two seeds or more
+get the seed-bootstrap interval of their difference.
 """
 
 from __future__ import annotations
@@ -68,15 +68,15 @@ def main() -> None:
         print(f"| {label} | {len(seeds)} | " + " | ".join(cells) + f" | {steps} | "
               + ("/".join(f"{v:.2f}" for v in paper[0]) + " | " + "/".join(map(str, paper[1])) if paper else "- | -")
               + " |")
-    tac = [s for label, seeds in runs.items() if "_tacgnn" in label for s in seeds]
-    for label, seeds in runs.items():
-        if "_tacgnn" in label or "blind" not in label or len(seeds) < 2 or len(tac) < 2:
-            continue
-        for task in TASKS[:3]:
-            diff = seed_bootstrap_difference(
-                [(round(s[task]["success_rate"] * s[task]["episodes"]), s[task]["episodes"]) for s in tac],
-                [(round(s[task]["success_rate"] * s[task]["episodes"]), s[task]["episodes"]) for s in seeds])
-            print(f"TacGNN minus {label}, {task}: {diff}")
+    blind = [(label, seeds) for label, seeds in runs.items() if label.startswith("blind") and len(seeds) >= 2]
+    for i, (label_a, seeds_a) in enumerate(blind):  # every pair of blind runs with two seeds or more
+        for label_b, seeds_b in blind[i + 1:]:
+            for task in TASKS:
+                diff = seed_bootstrap_difference(
+                    [(round(s[task]["success_rate"] * s[task]["episodes"]), s[task]["episodes"]) for s in seeds_a],
+                    [(round(s[task]["success_rate"] * s[task]["episodes"]), s[task]["episodes"]) for s in seeds_b])
+                print(f"{label_a} minus {label_b}, {task}: {100 * diff[0]:+.1f} points "
+                      f"(seed-bootstrap 95 % interval {100 * diff[1]:+.1f} to {100 * diff[2]:+.1f})")
 
 
 if __name__ == "__main__":
