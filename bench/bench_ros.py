@@ -19,7 +19,6 @@ import json
 import os
 import shlex
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -28,27 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def start_roscore(env: dict, port: int) -> subprocess.Popen:
-    core = subprocess.Popen(["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.monotonic() + 30
-    while True:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                break
-        if time.monotonic() > deadline or core.poll() is not None:
-            core.kill()
-            sys.exit("bench_ros: roscore did not start within 30 s")
-        time.sleep(0.2)
-    time.sleep(1.0)  # rosout registers
-    return core
+from tacgnn.real.loopback_master import free_port, loopback_env, start_roscore, stop_roscore
 
 
 def make_calibration(folder: Path, policy: str) -> Path:
@@ -128,9 +107,11 @@ def main() -> None:
         print(f"reference (no ROS, same episodes): success {ref['success_rate']:.3f} of {ref['episodes']}, "
               f"tick compute p50 {ref['tick_compute_ms']['p50']} ms, p99 {ref['tick_compute_ms']['p99']} ms")
     port = free_port()
-    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_HOSTNAME": "127.0.0.1",
-           "ROS_IP": "127.0.0.1", "ROS_HOME": str(work), "ROS_LOG_DIR": str(work / "log"), "MUJOCO_GL": "egl"}
-    core = start_roscore(env, port)
+    env = loopback_env(port, work)
+    try:
+        core = start_roscore(env, port)
+    except RuntimeError as e:
+        sys.exit(f"bench_ros: {e}")
     prefix = ["nice", "-n", str(args.nice)] if args.nice else []
     tacgnn = [*prefix, sys.executable, "-m", "tacgnn.cli", "real-hand"]
     episodes = 10**6 if args.minutes else args.episodes
@@ -155,8 +136,7 @@ def main() -> None:
             if p is not None and p.poll() is None:
                 p.kill()
                 p.wait(10)
-        core.terminate()
-        core.wait(10)
+        stop_roscore(core)
     if hand.returncode or ctrl.returncode:
         print((work / "hand.log").read_text()[-2000:], (work / "run.log").read_text()[-2000:], sep="\n")
         sys.exit(f"bench_ros: hand exit {hand.returncode}, controller exit {ctrl.returncode} (logs in {work})")

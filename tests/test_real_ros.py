@@ -7,9 +7,7 @@ apt-get is available; elsewhere these tests skip and say so.
 
 import importlib.util
 import json
-import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -18,43 +16,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tacgnn.real.loopback_master import free_port, loopback_env, start_roscore, stop_roscore
+
 HAVE_ROS = shutil.which("roscore") is not None and importlib.util.find_spec("rospy") is not None
 pytestmark = pytest.mark.skipif(not HAVE_ROS, reason="ROS 1 is not installed (roscore and rospy): "
                                                      "`make test-ros` installs it where apt-get is available")
 TIMEOUT = 240
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def ros_env(tmp_path_factory):
     """A roscore on a free loopback port, and the environment that points nodes at it."""
     home = tmp_path_factory.mktemp("ros")
-    port = _free_port()
-    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}", "ROS_HOSTNAME": "127.0.0.1",
-           "ROS_IP": "127.0.0.1", "ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log"), "MUJOCO_GL": "egl"}
-    core = subprocess.Popen(["roscore", "-p", str(port)], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.monotonic() + 30
-    while True:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                break
-        if time.monotonic() > deadline or core.poll() is not None:
-            core.kill()
-            pytest.fail("roscore did not start within 30 s")
-        time.sleep(0.2)
-    time.sleep(1.0)  # rosout registers
-    yield env
-    core.terminate()
+    port = free_port()
+    env = loopback_env(port, home)
     try:
-        core.wait(10)
-    except subprocess.TimeoutExpired:
-        core.kill()
+        core = start_roscore(env, port)
+    except RuntimeError as e:
+        pytest.fail(str(e))
+    yield env
+    stop_roscore(core)
 
 
 @pytest.fixture(scope="module")
