@@ -167,7 +167,8 @@ def _run(tree: str, cfg, tmp_dir) -> None:
         try:
             envs, steps = min(cfg.num_envs, 4), min(cfg.num_steps_per_env, 4)  # a small first iteration
             small = replace(cfg, max_iterations=1, num_envs=envs, num_steps_per_env=steps,
-                            num_mini_batches=min(cfg.num_mini_batches, envs * steps))
+                            num_mini_batches=min(cfg.num_mini_batches, envs * steps),
+                            num_learning_epochs=min(cfg.num_learning_epochs, 2))  # a drawn 100000 takes hours
             train(BaodingConfig(), small, tmp_dir / "run")
         finally:
             torch.set_num_threads(threads)
