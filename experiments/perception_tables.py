@@ -51,11 +51,19 @@ GT_POLICY = ROOT / "src" / "tacgnn" / "assets" / "baoding_gt_policy.pt"
 
 
 def ensure_datasets(args) -> dict[str, Path]:
+    """The datasets the invocation needs (--only-table1: the grasp datasets only)."""
+    paths: dict[str, Path] = {}
+    for obj in args.objects if args.only_table1 else OBJECTS:
+        paths[obj] = ROOT / "data" / f"{obj}_{args.grasp_samples}"
+        grasp_data.generate(grasp_data.GraspDataConfig(samples=args.grasp_samples, shard_size=args.shard,
+                                                       grasp=GraspConfig(object=obj)), paths[obj])
+    if args.only_table1:
+        return paths
     if args.baoding_data:
-        paths = {"baoding": Path(args.baoding_data)}
+        paths["baoding"] = Path(args.baoding_data)
         read_manifest(paths["baoding"])  # exists and is complete, or a clear error
     else:
-        paths = {"baoding": ROOT / "data" / f"baoding_gt_{args.baoding_samples}"}
+        paths["baoding"] = ROOT / "data" / f"baoding_gt_{args.baoding_samples}"
         baoding_data.generate(baoding_data.BaodingDataConfig(samples=args.baoding_samples, shard_size=args.shard,
                                                              policy_checkpoint=str(GT_POLICY)), paths["baoding"])
     # the same motions seen by a skin of another pitch: models are evaluated on it untrained
@@ -65,10 +73,6 @@ def ensure_datasets(args) -> dict[str, Path]:
     baoding_data.generate(baoding_data.BaodingDataConfig(samples=args.test_samples, shard_size=args.test_samples,
                                                          seed=99, env=other, policy_checkpoint=str(GT_POLICY)),
                           paths["baoding_other_pitch"])
-    for obj in OBJECTS:
-        paths[obj] = ROOT / "data" / f"{obj}_{args.grasp_samples}"
-        grasp_data.generate(grasp_data.GraspDataConfig(samples=args.grasp_samples, shard_size=args.shard,
-                                                       grasp=GraspConfig(object=obj)), paths[obj])
     return paths
 
 
@@ -162,13 +166,15 @@ def main() -> None:
                         "shipped ground-truth policy)")
     parser.add_argument("--baoding-samples", type=int, default=25_000,
                         help="frames used for Table II (the first ones of the dataset)")
+    parser.add_argument("--grasp-samples", type=int, default=20_000,
+                        help="grasps per object (a multiple of 5,000; the datasets are data/OBJECT_N)")
     args = parser.parse_args()
     known = [row_label(m, ch) for m, ch in TABLE1_MODELS]
     if args.models and not (args.only_table1 or args.only_curve):
         parser.error("--models goes with --only-table1 or --only-curve")
     if args.models and (unknown := set(args.models) - set(known)):
         parser.error(f"--models: unknown {sorted(unknown)}; choose from {known}")
-    args.grasp_samples, args.test_samples, args.shard = 20_000, 5_000, 5_000
+    args.test_samples, args.shard = 5_000, 5_000
     args.model_kw = {"use_force": False, "force_feature": "raw", "pool": "last"} if args.paper_setup else {}
     args.other_pitch = 1.25
     if args.quick:
@@ -185,9 +191,10 @@ def main() -> None:
              + (", the paper's loop and TacGNN" if args.paper_setup else
                 f"; TacGNN node input position + {example.model.force_feature} force, readout "
                 f"`pool={example.model.pool}`") + ". "
-             f"Datasets: Baoding {args.baoding_samples} frames of "
-             f"`{data['baoding'].relative_to(ROOT) if data['baoding'].is_absolute() else data['baoding']}`"
-             f", grasps {args.grasp_samples} per object "
+             + (f"Datasets: Baoding {args.baoding_samples} frames of "
+                f"`{data['baoding'].relative_to(ROOT) if data['baoding'].is_absolute() else data['baoding']}`, "
+                if "baoding" in data else "Datasets: ")
+             + f"grasps {args.grasp_samples} per object under the {GraspConfig().hand.torque_limit} N m torque limit "
              "(the paper: 1,000,000 steps and 200,000 grasps). Ours: mean ± std over seeds.", ""]
 
     if args.only_table1:
@@ -299,13 +306,19 @@ def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:
     lines = ["", "## Table I: object pose after a power grasp (test RMSE: position cm / orientation deg)", "",
              f"| object | metric | {ours_head} | paper MLP | paper CNN | paper GCN | paper TacGNN |",
              "|---|---|" + "---|" * (len(TABLE1_MODELS) + 4)]
-    for obj in OBJECTS:
+    seconds: dict[tuple[str, int], list[float]] = {key: [] for key in TABLE1_MODELS}
+    for obj in (o for o in OBJECTS if o in data):
         res = {(m, ch): [r for s in seeds if (r := run(obj, m, ch, s, data[obj], args))] for m, ch in TABLE1_MODELS}
+        for key, runs in res.items():
+            seconds[key] += [h["seconds"] for r in runs for h in r["history"]]
         for metric, idx, label in (("test/position_rmse_cm", 0, "position (cm)"),
                                    ("test/orientation_rmse_deg", 1, "orientation (deg)")):
             ours = [mean_std([r["final"][metric] for r in res[key]]) for key in TABLE1_MODELS]
             paper = [str(PAPER_TABLE1[obj][m][idx]) for m in ("mlp", "cnn", "gcn", "tacgnn")]
             lines.append(f"| {obj} | {label} | " + " | ".join(ours + paper) + " |")
+    # what the table costs: the training time of its runs on this machine
+    lines.append("| all | s/epoch | " + " | ".join(f"{np.mean(v):.0f}" if v else "-" for v in seconds.values())
+                 + " | - | - | - | - |")
     return lines
 
 

@@ -3,10 +3,10 @@
     .venv/bin/python experiments/table3_report.py [--iterations 400]
 
 Reads results/table3/*.json (written by `experiments/baoding_pipeline.sh` through `tacgnn
-evaluate`) and prints one markdown row per run: success on Simple / Middle / Hard (with
-Wilson 95 % intervals), the 1 s hold, mean steps to success, beside the paper's figures.
-Runs of several seeds of one model are pooled; every two blind runs with two seeds or more
-get the seed-bootstrap interval of their difference.
+evaluate`) and prints one markdown row per run: success on Simple / Middle / Hard and the
+1 s hold (with Wilson 95 % intervals; for several seeds, each seed's rate), mean steps to
+success, beside the paper's figures. Runs of several seeds of one model are pooled; every
+two blind runs with two seeds or more get the seed-bootstrap interval of their difference.
 """
 
 from __future__ import annotations
@@ -59,8 +59,12 @@ def main() -> None:
                 continue
             wins = sum(round(r["success_rate"] * r["episodes"]) for r in done)
             n = sum(r["episodes"] for r in done)
-            lo, hi = done[0]["ci95"] if len(done) == 1 else (float("nan"), float("nan"))
-            cells.append(f"{100 * wins / n:.1f}" + (f" ({100 * lo:.1f}-{100 * hi:.1f})" if len(done) == 1 else ""))
+            if len(done) == 1:  # one seed: its Wilson interval; several: each seed's rate
+                lo, hi = done[0]["ci95"]
+                spread = f" ({100 * lo:.1f}-{100 * hi:.1f})"
+            else:
+                spread = " (" + ", ".join(f"{100 * r['success_rate']:.1f}" for r in done) + ")"
+            cells.append(f"{100 * wins / n:.1f}{spread}")
         steps = "/".join(f"{np.nanmean([s[t]['mean_steps_to_success'] for s in seeds if t in s]):.0f}"
                          for t in TASKS[:3])
         model = next((k for k in PAPER if f"_{k}" in label), None)
@@ -69,6 +73,7 @@ def main() -> None:
               + ("/".join(f"{v:.2f}" for v in paper[0]) + " | " + "/".join(map(str, paper[1])) if paper else "- | -")
               + " |")
     blind = [(label, seeds) for label, seeds in runs.items() if label.startswith("blind") and len(seeds) >= 2]
+    blind.sort(key=lambda run: not run[0].startswith("blind_tacgnn ("))  # TacGNN minus each other first
     for i, (label_a, seeds_a) in enumerate(blind):  # every pair of blind runs with two seeds or more
         for label_b, seeds_b in blind[i + 1:]:
             for task in TASKS:
