@@ -7,13 +7,14 @@ of a scripted finger wave after a warm-up, and times:
 * env steps/s: whole env steps (physics, skin, rules);
 * physics share: the part spent in the engine's step;
 * skin us/step: the readings (noise on) per env step, on the run's last state: the
-  compiled numba kernel for 'c', the torch model for 'warp' fed numpy views (as the env
-  does), and 'device' the torch model on the engine's device arrays (no host copies,
-  what a GPU run would use).
+  compiled numba kernel for 'c', the torch model for 'warp' fed host numpy arrays, and
+  'device' the torch model on the engine's device arrays (as the env runs it on Warp).
 * host KB/env-step ('warp'): what a GPU run copies between host and device per env step
-  as the env drives the engine today: the engine's host mirrors (the state up before each
-  engine call, state and derived arrays down after; on the CPU the mirrors are switched on
-  for this count) and the skin fed host arrays (inputs up, readings and taxel positions down).
+  as the env drives the engine: the engine's host mirrors (the state up before each engine
+  call, state and derived arrays down after; on the CPU the mirrors are switched on for
+  this count) and the skin's traffic (`DeviceTactile.host_bytes`: inputs staged up,
+  readings and taxel positions copied down). A line per Warp row splits it, beside the
+  same count with the skin fed the host mirrors instead of the device arrays.
 
 On the CPU MuJoCo Warp is a development target (one launch per kernel, no threads); its
 speed is on a GPU, where this script runs unchanged with --device cuda:0. The first Warp
@@ -84,7 +85,10 @@ def bench(backend: str, num_envs: int, steps: int, device: str) -> dict:
         "host KB/env-step": float("nan"),
     }
     if backend == "warp":
-        row["host KB/env-step"] = host_traffic(env, [wave(None) for _ in range(steps)]) / 1024
+        traffic = host_traffic(env, [wave(None) for _ in range(steps)])
+        host_fed = host_traffic(env, [wave(None) for _ in range(steps)], host_fed=True)
+        row["host KB/env-step"] = sum(traffic.values()) / 1024
+        row["bytes"] = (traffic, host_fed)
         views = sim.device_views()
         on_device = timed(lambda: env.tactile.readings(views["sensordata"], views["xpos"], views["xmat"], rng),
                           steps, cfg.sim.device)
@@ -92,28 +96,26 @@ def bench(backend: str, num_envs: int, steps: int, device: str) -> dict:
     return row
 
 
-def host_traffic(env: BaodingEnv, actions: list[np.ndarray]) -> float:
-    """Bytes per env step copied between host and device by a Warp env with host mirrors."""
+def host_traffic(env: BaodingEnv, actions: list[np.ndarray], host_fed: bool = False) -> dict[str, float]:
+    """Bytes per env step copied between host and device by a Warp env with host mirrors:
+    {'engine': the mirrors, 'skin': the skin's inputs and results}. `host_fed`: the skin
+    reads the host mirrors instead of the engine's device arrays (for comparison)."""
     sim, tactile = env.sim, env.tactile
-    skin_bytes = [0]
-
-    def counted(method):
-        def call(*arrays, **kwargs):
-            out = method(*arrays, **kwargs)
-            skin_bytes[0] += sum(a.nbytes for a in arrays if isinstance(a, np.ndarray)) + np.asarray(out).nbytes
-            return out
-        return call
-
-    mirror, before = sim.mirror, sim.host_bytes
+    mirror, engine, skin = sim.mirror, sim.host_bytes, tactile.host_bytes
     sim.mirror = True  # on the CPU the "mirrors" are the views themselves: copying them changes nothing
-    tactile.readings, tactile.positions = counted(tactile.readings), counted(tactile.positions)
+    if host_fed:
+        tactile.engine_readings = lambda sim, ids, rng: tactile.readings(sim.sensordata[ids], sim.xpos[ids],
+                                                                         sim.xmat[ids], rng)
+        tactile.engine_positions = lambda sim, ids: tactile.positions(sim.xpos[ids], sim.xmat[ids])
     try:
         for action in actions:
             env.step(action)
     finally:
         sim.mirror = mirror
-        del tactile.readings, tactile.positions  # back to the class's methods
-    return (sim.host_bytes - before + skin_bytes[0]) / (len(actions) * env.num_envs)
+        if host_fed:
+            del tactile.engine_readings, tactile.engine_positions  # back to the class's methods
+    steps = len(actions) * env.num_envs
+    return {"engine": (sim.host_bytes - engine) / steps, "skin": (tactile.host_bytes - skin) / steps}
 
 
 def equivalence(num_envs: int, device: str, states: int = 5) -> dict:
@@ -165,12 +167,18 @@ def main() -> None:
         print("one control step, Warp vs C, from the same states: " +
               ", ".join(f"{k} {v:.2e}" for k, v in gaps.items()), flush=True)
     rows = [bench(b, n, args.steps, args.device) for b in args.backends for n in args.envs]
+    traffic = [(row["envs"], row.pop("bytes")) for row in rows if "bytes" in row]
     keys = list(rows[0])
     print(" | ".join(keys))
     fmt = {"physics share": "{:.2f}", "env steps/s": "{:.0f}", "host KB/env-step": "{:.2f}"}
     for row in rows:
         print(" | ".join(fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k])
                          for k in keys), flush=True)
+    for envs, (device_fed, host_fed) in traffic:
+        print(f"warp, {envs} envs, host<->device bytes per env step: engine mirrors {device_fed['engine']:,.0f}, "
+              f"skin {device_fed['skin']:,.0f} (fed the device arrays; its readings down), "
+              f"total {sum(device_fed.values()):,.0f}; with the skin fed the host mirrors: "
+              f"skin {host_fed['skin']:,.0f}, total {sum(host_fed.values()):,.0f}", flush=True)
 
 
 if __name__ == "__main__":

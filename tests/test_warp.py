@@ -5,6 +5,7 @@ and divergence handling on Warp, the host-mirror path a GPU uses, and bad input.
 The first run compiles MuJoCo Warp's kernels (about a minute); they are cached after.
 """
 
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -19,6 +20,7 @@ import mujoco.batch  # noqa: E402
 from tacgnn.config import ConfigError  # noqa: E402
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig  # noqa: E402
 from tacgnn.sim.scene import SimConfig  # noqa: E402
+from tacgnn.sim.tactile import TactileModel  # noqa: E402
 from tacgnn.sim.tactile_device import DeviceTactile  # noqa: E402
 from tacgnn.sim.warp_backend import WarpSim, WarpUnavailable  # noqa: E402
 
@@ -82,6 +84,56 @@ def test_skin_on_the_device_equals_the_compiled_skin(pair):
     assert isinstance(out, torch.Tensor)
     ref = c.tactile.readings(w.sim.sensordata, w.sim.xpos, w.sim.xmat, np.random.default_rng(3))
     assert (ref > 0).sum() >= CFG.num_envs and np.abs(out.numpy() - ref).max() <= 1e-5
+
+
+def test_skin_fed_by_the_engine_reads_the_device_not_the_host(pair):
+    """`engine_readings` reads the Warp engine's device arrays: on a sim with host mirrors
+    (as on a GPU) it gives the compiled skin's readings on the engine's contacts even with
+    the mirrors overwritten, keeps them on the device, and copies only the readings to the host."""
+    c, w = pair
+    n, t = CFG.num_envs, CFG.skin.num_taxels
+    sim = WarpSim(c.model, n, mirror=True)
+    for name in ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart"):
+        getattr(sim, name)[:] = getattr(w.sim, name)
+    sim.forward()
+    ref = c.tactile.readings(sim.sensordata, sim.xpos, sim.xmat, np.random.default_rng(5))
+    ref_clean, ref_pos = c.tactile.readings(sim.sensordata, sim.xpos, sim.xmat), c.tactile.positions(sim.xpos, sim.xmat)
+    assert (ref > 0).sum() >= n
+    sim.sensordata[:], sim.xpos[:], sim.xmat[:] = 0.0, np.nan, np.nan  # the host mirrors, not the engine
+    skin = DeviceTactile(CFG.skin, c.model)
+    out = skin.engine_readings(sim, slice(None), np.random.default_rng(5))
+    assert np.abs(out - ref).max() <= 1e-5  # N
+    assert isinstance(skin.device_readings, torch.Tensor) and skin.device_readings.shape == (n, t)
+    np.testing.assert_array_equal(skin.device_readings.numpy(), out)
+    assert skin.host_bytes == n * t * 4  # the readings down; no input went up
+    # some rows (a reset): those rows replaced on the device, the others kept
+    before = skin.device_readings
+    rows = np.array([2, 0])
+    out = skin.engine_readings(sim, rows, None)
+    assert np.abs(out - ref_clean[rows]).max() <= 1e-5 and out.shape == (2, t)
+    np.testing.assert_array_equal(skin.device_readings[[1, 3]].numpy(), before[[1, 3]].numpy())
+    np.testing.assert_array_equal(skin.device_readings[rows].numpy(), out)
+    np.testing.assert_allclose(skin.engine_positions(sim, rows), ref_pos[rows], atol=1e-6)
+
+
+def test_warp_env_steps_with_the_skin_on_the_device():
+    """The env on Warp takes its skin from the device arrays: per step, the skin's only host
+    traffic is the readings' copy, and it equals the readings kept on the device."""
+    cfg = on_warp(replace(CFG, num_envs=2, obs_mode="tactile"))
+    env = BaodingEnv(cfg)
+    env.reset(seed=0)
+    compiled, t = TactileModel(cfg.skin, env.model), cfg.skin.num_taxels
+    for _ in range(30):  # until the balls, dropped from above the palm, press the skin
+        before, rng = env.tactile.host_bytes, copy.deepcopy(env._rng)  # the skin draws its noise seed first
+        obs, _, terminated, truncated, info = env.step(env.last_action.copy())
+        assert not (terminated | truncated).any()
+        assert env.tactile.host_bytes - before == 2 * (t * 4 + t * 3 * 4)  # readings and taxel positions, down
+        if (info["tactile"] > 0).sum() >= 4:
+            break
+    np.testing.assert_array_equal(info["tactile"], env.tactile.device_readings.numpy())
+    np.testing.assert_array_equal(obs["taxel_pos"], env.tactile.device_positions.numpy())
+    ref = compiled.readings(env.sim.sensordata, env.sim.xpos, env.sim.xmat, rng)
+    assert (ref > 0).sum() >= 4 and np.abs(info["tactile"] - ref).max() <= 1e-5
 
 
 def test_one_control_step_matches_the_c_engine(pair):

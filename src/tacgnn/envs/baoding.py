@@ -42,6 +42,7 @@ from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
 from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
 from tacgnn.hand.allegro import FINGER_RANGES, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
+from tacgnn.sim.backend import skin_positions, skin_readings
 from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
 
 log = logging.getLogger(__name__)
@@ -342,11 +343,10 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         """
         if not self.config.tactile:
             return None, None
-        sim = self.sim
-        readings = self.tactile.readings(sim.sensordata[ids], sim.xpos[ids], sim.xmat[ids], self._rng)
+        readings = skin_readings(self.tactile, self.sim, ids, self._rng)  # on Warp: from the device arrays
         if not self._obs_uses_skin:
             return readings, None
-        return readings, self.tactile.positions(sim.xpos[ids], sim.xmat[ids])
+        return readings, skin_positions(self.tactile, self.sim, ids)
 
     # --- random streams ----------------------------------------------------------------
     def _seed(self, seed: int | None) -> None:

@@ -9,7 +9,11 @@ grid of `tactile.py` saves work on a CPU thread; on a GPU, fixed shapes are wort
 skipped pairs.
 
 Input arrays may be numpy (returned as numpy, sharing memory on the CPU) or torch tensors
-(returned as tensors on their device), e.g. `WarpSim.device_views()`.
+(returned as tensors on their device), e.g. `WarpSim.device_views()`. An env on Warp calls
+`engine_readings` / `engine_positions`: they read the engine's device arrays themselves, so
+the skin's inputs are never staged on the host; the results stay on the device
+(`device_readings`, `device_positions`), and the host gets one copy of them for the env's
+numpy interface (observations, ``info['tactile']``), counted in `host_bytes`.
 """
 
 from __future__ import annotations
@@ -43,6 +47,12 @@ class DeviceTactile:
     Shapes (N envs, T taxels):
         readings(sensordata (N, nsensordata), xpos (N, nbody, 3), xmat (N, nbody, 9), rng) -> (N, T) float32
         positions(xpos, xmat) -> (N, T, 3) float32
+        engine_readings(sim, ids, rng) -> (len(ids), T) numpy; device_readings (N, T) tensor
+        engine_positions(sim, ids) -> (len(ids), T, 3) numpy; device_positions (N, T, 3) tensor
+
+    Attributes:
+        host_bytes: bytes of host arrays it took in or handed out so far: what a GPU run
+            copies over the bus for the skin (on the CPU the numpy views cost no copy).
     """
 
     def __init__(self, layout: SkinLayout, model: mujoco.MjModel, device: str | torch.device = "cpu"):
@@ -69,12 +79,64 @@ class DeviceTactile:
         self.local_positions = torch.as_tensor(ref.local_positions, device=dev)  # (T, 3) float32
         self.table = torch.as_tensor(normal_table(), device=dev)
         self.num_slots = len(patch_of_slot)
+        self.host_bytes = 0
+        self.device_readings: torch.Tensor | None = None
+        self.device_positions: torch.Tensor | None = None
 
     def _tensor(self, array) -> torch.Tensor:
         """A tensor on the device; numpy input shares memory where it can (read-only arrays are copied)."""
-        if isinstance(array, np.ndarray) and not array.flags.writeable:
-            array = array.copy()
+        if isinstance(array, np.ndarray):
+            self.host_bytes += array.nbytes  # staged from the host: crosses the bus on a GPU
+            if not array.flags.writeable:
+                array = array.copy()
         return torch.as_tensor(array, device=self.device)
+
+    def _to_host(self, out: torch.Tensor) -> np.ndarray:
+        self.host_bytes += out.numel() * out.element_size()
+        return out.cpu().numpy()
+
+    # --- fed by the engine's device arrays -----------------------------------------------
+    def _engine_views(self, sim, ids) -> tuple[slice | torch.Tensor, list[torch.Tensor]]:
+        """Rows `ids` of the engine's sensordata, xpos and xmat, as tensors on its device (no copy
+        for a slice), and the row index as used."""
+        views = sim.device_views()
+        if not isinstance(ids, slice):
+            ids = np.asarray(ids)
+            self.host_bytes += ids.nbytes  # the row indices go up (reset steps only)
+            ids = torch.as_tensor(ids, device=self.device)
+        return ids, [views[name][ids] for name in ("sensordata", "xpos", "xmat")]
+
+    @staticmethod
+    def _keep(last: torch.Tensor | None, ids: slice | torch.Tensor, out: torch.Tensor,
+              num_envs: int) -> torch.Tensor:
+        """All envs' results with rows `ids` replaced by `out`: a new tensor, so that a host copy
+        handed out before (the same memory on the CPU) does not change."""
+        if isinstance(ids, slice) and ids == slice(None):
+            return out
+        full = out.new_zeros((num_envs, *out.shape[1:])) if last is None else last.clone()
+        full[ids] = out
+        return full
+
+    def engine_readings(self, sim, ids: slice | np.ndarray = slice(None),
+                        rng: np.random.Generator | None = None) -> np.ndarray:
+        """Readings (len(ids), T) of envs `ids` of `sim` (a `WarpSim`), read from its device arrays.
+
+        The same model and noise draws as `readings`, with no input staged on the host. The
+        readings stay on the device: `device_readings` (N, T) holds each env's latest (zero
+        before its first). The return value is their host copy (the same memory on the CPU).
+        """
+        index, (sensordata, xpos, xmat) = self._engine_views(sim, ids)
+        out = self.readings(sensordata, xpos, xmat, rng)
+        self.device_readings = self._keep(self.device_readings, index, out, sim.num_envs)
+        return self._to_host(out)
+
+    def engine_positions(self, sim, ids: slice | np.ndarray = slice(None)) -> np.ndarray:
+        """World taxel positions (len(ids), T, 3) of envs `ids` of `sim`, from its device arrays;
+        kept on the device as `device_positions` (N, T, 3), returned as a host copy."""
+        index, (_, xpos, xmat) = self._engine_views(sim, ids)
+        out = self.positions(xpos, xmat)
+        self.device_positions = self._keep(self.device_positions, index, out, sim.num_envs)
+        return self._to_host(out)
 
     def contacts(self, sensordata):
         """Normal forces (N, P, K) and world contact points (N, P, K, 3) from sensordata."""
@@ -120,7 +182,7 @@ class DeviceTactile:
         if noise > 0:
             out = out * (1.0 + noise * self._normal(seed, n))
             out = torch.clamp(out, min=0.0)
-        return out.cpu().numpy() if as_numpy else out
+        return self._to_host(out) if as_numpy else out
 
     def _normal(self, seed: np.uint64, n: int) -> torch.Tensor:
         """`tactile.counter_normal` for flat indices env * T + taxel, in int64 bit arithmetic."""
@@ -138,4 +200,4 @@ class DeviceTactile:
         n = xpos.shape[0]
         rot = xmat[:, self.body_of_taxel].reshape(n, -1, 3, 3).to(torch.float32)
         out = torch.einsum("ntij,tj->nti", rot, self.local_positions) + xpos[:, self.body_of_taxel].to(torch.float32)
-        return out.cpu().numpy() if as_numpy else out
+        return self._to_host(out) if as_numpy else out

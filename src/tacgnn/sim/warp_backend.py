@@ -5,7 +5,8 @@ sensordata, actuator_force; expand / reset / forward / step), so an env written
 against one runs on the other unchanged. On the CPU its arrays are numpy views of the
 engine's own memory (no copies); on a GPU they are host mirrors, uploaded before and
 downloaded after each engine call, and `device_views()` gives the device arrays as
-torch tensors for code that stays on the device (the skin: `tactile_device.py`).
+torch tensors for code that stays on the device (the skin reads its inputs there:
+`DeviceTactile.engine_readings`).
 
 What differs from the C engine, and why:
 
@@ -147,6 +148,7 @@ class WarpSim:
         self.host_bytes = 0
         self._expanded: dict[str, tuple[Any, np.ndarray]] = {}  # field -> (device array (warp), view)
         self._mask = wp.zeros(num_envs, dtype=bool, device=self.device)
+        self._device_views: dict[str, Any] | None = None  # made on first use (imports torch)
         for name in _STATE + _DERIVED + ("time",):
             setattr(self, name, self._view(getattr(self.wdata, name)))
         self.xmat = self.xmat.reshape(num_envs, model.nbody, 9)  # (N, nbody, 3, 3) -> C's layout
@@ -193,13 +195,20 @@ class WarpSim:
         """
         return IntegrationState(self)
 
-    def device_views(self) -> dict[str, object]:
-        """Torch tensors over the device arrays (no copy): sensordata, xpos, xmat (N, nbody, 9), qpos, qvel."""
-        wp = self._wp
-        views = {name: wp.to_torch(getattr(self.wdata, name))
-                 for name in ("sensordata", "xpos", "xmat", "qpos", "qvel")}
-        views["xmat"] = views["xmat"].reshape(self.num_envs, self.model.nbody, 9)
-        return views
+    def device_views(self) -> dict[str, Any]:
+        """Torch tensors over the device arrays (no copy): sensordata, xpos, xmat (N, nbody, 9), qpos, qvel.
+
+        They hold what the engine computed in its last call, whatever the host mirrors hold.
+        Each engine call ends by reading the device (the mirrors' download, the overflow
+        flags), which waits for its kernels, so torch reads finished arrays.
+        """
+        if self._device_views is None:
+            wp = self._wp
+            views = {name: wp.to_torch(getattr(self.wdata, name))
+                     for name in ("sensordata", "xpos", "xmat", "qpos", "qvel")}
+            views["xmat"] = views["xmat"].reshape(self.num_envs, self.model.nbody, 9)
+            self._device_views = views
+        return self._device_views
 
     def set_const(self, ids: np.ndarray) -> None:
         """Nothing to do: MuJoCo Warp derives the mass matrix from `body_mass` every step."""
