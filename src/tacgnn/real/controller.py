@@ -22,6 +22,7 @@ one when it stops (with the number of ticks it acted).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,7 @@ from tacgnn.envs.baoding import ordered_balls
 from tacgnn.hand.allegro import JOINT_NAMES
 from tacgnn.learning.policy import SHIPPED_POLICY
 from tacgnn.real.kinematics import TaxelKinematics
+from tacgnn.real.tick_networks import TickPerception, TickPolicy
 
 NUM_JOINTS = len(JOINT_NAMES)
 BLIND_MODES = ("perceived", "no_perception")
@@ -51,6 +53,9 @@ class BlindControllerConfig:
     max_target_rate: float = 0.0
     """If > 0, a target moves at most this fast (rad/s) from the last commanded target (the first
     tick of an episode: from the measured angles); 0: no limit."""
+    tick_networks: bool = True
+    """Run the networks through `tacgnn.real.tick_networks` (single-frame calls, serial graph
+    kernels: bit-identical outputs in a fraction of the time); False: as loaded."""
 
     def __post_init__(self) -> None:
         check(self.torch_threads >= 1, "torch_threads", "must be >= 1")
@@ -95,9 +100,13 @@ class BlindController:
         if mode not in BLIND_MODES:
             raise ValueError(f"policy {cfg.policy} observes '{mode}', which a blind hand cannot provide; "
                              f"use a policy trained with obs_mode in {list(BLIND_MODES)}")
-        self.perception = load_perception(cfg.policy) if mode == "perceived" else None
-        if mode == "perceived" and self.perception is None:
+        perception = load_perception(cfg.policy) if mode == "perceived" else None
+        if mode == "perceived" and perception is None:
             raise ValueError(f"policy {cfg.policy} is a 'perceived' policy but holds no perception model")
+        self.perception: Callable[..., np.ndarray] | None = perception
+        if cfg.tick_networks:
+            self.policy = TickPolicy.wrap(self.policy, cfg.policy)
+            self.perception = None if perception is None else TickPerception.wrap(perception)
         hand = self.env_config.hand
         self.kinematics = TaxelKinematics(hand, self.env_config.skin, self.env_config.sim)
         self.joint_low, self.joint_high = np.asarray(hand.joint_ranges, dtype=np.float64).T
