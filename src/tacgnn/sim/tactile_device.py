@@ -158,8 +158,11 @@ class DeviceTactile:
         force = sensordata[:, self.force_idx]  # (N, S) normal forces, 0 in empty slots
         point = sensordata[:, self.pos_idx]  # (N, S, 3) world contact points
         rot = xmat[:, self.slot_body].reshape(n, -1, 3, 3)
-        # contact point in the link frame: R^T (c - x), in the input's precision
-        local = torch.einsum("nsji,nsj->nsi", rot, point - xpos[:, self.slot_body]).to(torch.float32)
+        # contact point in the link frame: R^T (c - x), in float64 as the compiled kernel does
+        # (on float32 inputs, a float32 transform moved readings at a disc's rim by 2e-5 N)
+        f64 = torch.float64
+        local = torch.einsum("nsji,nsj->nsi", rot.to(f64), point.to(f64) - xpos[:, self.slot_body].to(f64))
+        local = local.to(torch.float32)
         pressed = force > 0
         f = torch.where(pressed, force, torch.zeros_like(force)).to(torch.float64)
         radius = self.slot_radius * torch.pow(f, 1.0 / 3.0)  # a = a_1N F^(1/3)
