@@ -17,7 +17,7 @@ import numpy as np
 from tacgnn.envs import observation
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout
-from tacgnn.sim.backend import make_sim, make_tactile
+from tacgnn.sim.backend import make_sim, make_tactile, skin_positions, skin_readings
 from tacgnn.sim.scene import SimConfig, compile_with_skin
 
 NUM_JOINTS = 16
@@ -62,9 +62,8 @@ class HandEnvBase:
     # --- the skin ----------------------------------------------------------------------
     def tactile_readings(self, noisy: bool = True) -> np.ndarray:
         """(N, T) taxel forces (N) at the start of the last physics substep."""
-        return self.tactile.readings(self.sim.sensordata, self.sim.xpos, self.sim.xmat,
-                                     self._rng if noisy else None)
+        return skin_readings(self.tactile, self.sim, slice(None), self._rng if noisy else None)
 
     def taxel_positions(self) -> np.ndarray:
         """(N, T, 3) world positions (m) of all taxels, same instant as the readings."""
-        return self.tactile.positions(self.sim.xpos, self.sim.xmat)
+        return skin_positions(self.tactile, self.sim, slice(None))
