@@ -29,6 +29,7 @@ from tacgnn.perception.checkpoint import load_checkpoint
 from tacgnn.perception.evaluation import evaluate
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import train
+from tacgnn.provenance import provenance
 
 PAPER_TABLE1 = {  # object: model: (position cm, orientation deg)
     "cube": {"mlp": (0.187, 12.31), "cnn": (0.891, 15.87), "gcn": (0.195, 10.33), "tacgnn": (0.176, 9.17)},
@@ -203,6 +204,7 @@ def main() -> None:
                 for obj in args.objects:
                     run(obj, m, ch, s, data[obj], args)
         args.report = True  # the page shows the complete runs; columns left out by --models stay "not run"
+        write_table1_results(data, args, seeds)
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
         (ROOT / "docs" / f"{page_stem('perception_table1', args)}.md").write_text(text)
         print(text)
@@ -298,6 +300,25 @@ def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
         lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]['final']['test/position_rmse_cm']:.3f}"
                                               if curve[m][i] else "not run" for m in curve) + " |")
     return lines
+
+
+def write_table1_results(data: dict[str, Path], args, seeds) -> None:
+    """results/table1/OBJECT_MODEL_sSEED.json of every complete Table I run: its final train and
+    test errors, seconds per epoch and provenance."""
+    out = ROOT / "results" / "table1"
+    out.mkdir(parents=True, exist_ok=True)
+    for obj in (o for o in OBJECTS if o in data):
+        for m, ch in TABLE1_MODELS:
+            for s in seeds:
+                r = run(obj, m, ch, s, data[obj], args)
+                if not r:
+                    continue
+                cfg = load_checkpoint(r["ckpt"])["config"]
+                result = {"object": obj, "model": row_label(m, ch), "epochs": len(r["history"]), **r["final"],
+                          "seconds_per_epoch": float(np.mean([h["seconds"] for h in r["history"]])),
+                          "provenance": provenance({"perception": r["ckpt"]}, s,
+                                                   {**cfg, "dataset": str(data[obj].relative_to(ROOT))})}
+                (out / f"{obj}_{row_label(m, ch)}_s{s}.json").write_text(json.dumps(result, indent=1) + "\n")
 
 
 def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:
