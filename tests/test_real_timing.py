@@ -6,6 +6,7 @@ import time
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from tacgnn.real import ros
 
@@ -55,23 +56,55 @@ def test_stamps_in_nanoseconds_ros1_and_ros2():
 
 
 def test_the_tick_waits_for_the_skin_of_its_joint_states_instant():
-    cfg = ros.RosConfig()
+    """The joint state arrives before its skin frame: the tick runs when the frame comes, on the
+    thread that delivers it; a frame that never comes: the tick runs after the pair window.
+    (At 10 Hz with a wide window, so that a loaded test machine's scheduling stays inside it.)"""
+    cfg = ros.RosConfig(rate_hz=10.0, pair_window_s=0.08)
+    period_ns = int(1e9 / cfg.rate_hz)
     tick = make_tick(cfg)
-    t = 10 * PERIOD_NS
+    running = threading.Event()
+    running.set()
+    threads: list[str] = []
+
+    def step(_arrived):
+        if tick() is not None:  # (ticks on timeouts hold: nothing new)
+            threads.append(threading.current_thread().name)
+        return True
+
+    ticker = ros.ArrivalTicker(cfg, tick.joints, step, ros.LoopStats(), tick.paired, tick.skin)
+    loop = threading.Thread(target=ticker.run, args=(running.is_set,), name="loop", daemon=True)
+    loop.start()
+    t = 10 * period_ns
+    tick.skin(skin(t - period_ns, cfg))  # the frame of the step before
     tick.joints(joint_state(t))
-    tick.skin(skin(t - PERIOD_NS, cfg))  # the frame of the step before
-    assert not tick.paired()
-    threading.Timer(0.003, tick.skin, (skin(t, cfg),)).start()
+    assert not tick.paired() and threads == []
+    sender = threading.Thread(target=tick.skin, args=(skin(t, cfg),), name="skin")
+    sender.start()
+    sender.join()
+    assert threads == ["skin"] and tick.unpaired == 0
     began = time.monotonic()
-    tick.wait_for_pair(began + 0.5)
-    assert tick.paired() and time.monotonic() - began < 0.4
-    assert tick() is not None and tick.unpaired == 0
-    # the frame does not come: the tick goes on after the window with the newest one, and counts it
-    tick.joints(joint_state(t + PERIOD_NS))
-    began = time.monotonic()
-    tick.wait_for_pair(began + cfg.pair_window_s)
-    assert time.monotonic() - began >= cfg.pair_window_s
-    assert tick() is not None and tick.unpaired == 1
+    tick.joints(joint_state(t + period_ns))  # its frame does not come: after the window, the newest one
+    while len(threads) < 2 and time.monotonic() - began < 2.0:
+        time.sleep(0.001)
+    assert threads == ["skin", "loop"] and time.monotonic() - began >= cfg.pair_window_s
+    assert tick.unpaired == 1 and tick.controller.steps == 2
+    running.clear()
+    loop.join()
+
+
+def test_an_error_in_a_tick_ends_the_loop_on_its_thread():
+    cfg = ros.RosConfig()
+    latest = ros.Latest()
+    running = threading.Event()
+    running.set()
+
+    def tick(_arrived):
+        raise FloatingPointError("the policy returned non-finite actions")
+
+    ticker = ros.ArrivalTicker(cfg, latest, tick)
+    threading.Timer(0.01, latest, (joint_state(PERIOD_NS),)).start()
+    with pytest.raises(FloatingPointError, match="non-finite"):
+        ticker.run(running.is_set)
 
 
 def test_without_stamps_a_frame_newer_than_the_last_tick_pairs():

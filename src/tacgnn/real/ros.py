@@ -26,6 +26,8 @@ fixed 50 Hz clock for faster drivers. Each tick takes the newest joint state and
 frame of the same instant: the tick waits up to ``pair_window_s`` for it (same header
 stamp where both messages carry one, else a frame newer than the last tick), so joint
 angles and skin are never taken from two different steps of the hand when both arrive.
+The tick runs on the thread that receives whichever of the two comes last
+(`ArrivalTicker`), with no hand-over to another thread.
 The command's header stamp is the stamp of the joint state it answers (a driver can
 tell how late it is). When the joint state or the skin frame is older
 than ``stale_periods`` control periods the tick commands nothing, so the hand holds its last
@@ -200,11 +202,15 @@ class Latest:
         self.last: tuple[Any, float] = (None, -np.inf)
         self.count = 0
         self.arrived = threading.Event()
+        self.listener: Callable[[], None] | None = None
+        """Called on the receiving thread after each message (the control loop ticks there)."""
 
     def __call__(self, msg: Any) -> None:
         self.last = (msg, time.monotonic())
         self.count += 1
         self.arrived.set()
+        if self.listener is not None:
+            self.listener()
 
     @property
     def msg(self) -> Any:
@@ -258,16 +264,6 @@ class ControlTick:
         if joint_stamp is not None and skin_stamp is not None:
             return skin_stamp >= joint_stamp
         return self.skin.count > self._skin_seen
-
-    def wait_for_pair(self, deadline: float) -> None:
-        """Wait until `paired()` or until `deadline` (monotonic s)."""
-        while not self.paired():
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return
-            self.skin.arrived.clear()
-            if not self.paired():
-                self.skin.arrived.wait(left)
 
     def check_inputs(self) -> None:
         """Decode the newest joint state and skin frame and run them through the calibration:
@@ -350,6 +346,109 @@ class LoopStats:
                 "compute_ms": {"p50": pct(self.compute_s, 50), "p99": pct(self.compute_s, 99),
                                "max": pct(self.compute_s, 100)},
                 "slow_ticks": self.slow_ticks[:50]}
+
+
+class ArrivalTicker:
+    """Ticks on the thread that receives the message completing a state, not on a waiting loop.
+
+    Why: handing each message to a main loop costs a thread wake-up per tick, which on
+    loaded cores is the scheduler's to grant; ticking in the receive callback (ROS 1:
+    rospy's thread of that topic) starts the tick as soon as the state is complete.
+
+    A new message of `latest` ticks at once if `paired()` (its partner, e.g. the skin frame
+    of the same instant, is there), else when `partner`'s next message makes it paired,
+    else `pair_window_s` after its arrival with what there is. Messages closer than 0.75
+    periods to the last one ticked on are skipped (a driver that publishes faster than the
+    control rate), judged by their header stamps where they have them (the hand's clock,
+    free of transport jitter), else by arrival; periods between two ticked messages
+    without a message count as overruns in stats. When no message comes for 1.5 periods,
+    the loop ticks anyway (the tick sees stale data and holds). Ticks never overlap (one
+    lock); an exception in a tick ends the loop and is raised by `run`.
+    """
+
+    def __init__(self, cfg: RosConfig, latest: Latest, tick: Callable[[float], bool], stats: LoopStats | None = None,
+                 paired: Callable[[], bool] | None = None, partner: Latest | None = None):
+        self.cfg, self.latest, self.tick, self.stats, self.paired = cfg, latest, tick, stats, paired
+        self.lock = threading.Lock()
+        self.wake = threading.Event()  # the waiting loop has a new deadline or should stop
+        self.seen = latest.count
+        self.last = time.monotonic()  # the last tick: for the timeout
+        self.last_fresh: float | None = None  # arrival of the last message ticked on
+        self.last_stamp: int | None = None
+        self.pending: float | None = None  # arrival of a message waiting for its partner
+        self.stopped = False
+        self.error: BaseException | None = None
+        latest.listener = self.on_message
+        if partner is not None:
+            partner.listener = self.on_partner
+
+    def on_message(self) -> None:
+        with self.lock:
+            if self.stopped or self.latest.count == self.seen:
+                return
+            self.seen = self.latest.count
+            msg, arrived = self.latest.last
+            period, stamp = self.cfg.period, stamp_ns(msg)
+            if stamp is not None and self.last_stamp is not None:
+                gap = (stamp - self.last_stamp) * 1e-9
+            else:
+                gap = np.inf if self.last_fresh is None else arrived - self.last_fresh
+            if gap < 0.75 * period:
+                return  # faster than the control rate: wait for the next one
+            if np.isfinite(gap) and gap > 1.5 * period and self.stats is not None and self.stats.commands:
+                self.stats.overruns += int(round(gap / period)) - 1
+            self.last_stamp, self.last_fresh, self.pending = stamp, arrived, arrived
+            if self.paired is None or self.paired():
+                self._fire()
+            else:
+                self.wake.set()  # the loop waits for the pair window now
+
+    def on_partner(self) -> None:
+        with self.lock:
+            if self.pending is not None and not self.stopped and self.paired is not None and self.paired():
+                self._fire()
+
+    def _fire(self, now: float | None = None) -> None:
+        """Tick (lock held): on the pending message, or on none at `now` (a timeout)."""
+        arrived = self.pending if now is None else now
+        assert arrived is not None
+        self.pending = None
+        self.last = time.monotonic()
+        try:
+            go_on = self.tick(arrived)
+        except BaseException as err:  # raised again by run(), on the loop's thread
+            self.error, go_on = err, False
+        if go_on is False:
+            self.stopped = True
+            self.wake.set()
+
+    def run(self, ok: Callable[[], bool], spin: Callable[[float], None] | None = None) -> None:
+        """Wait here for the pair windows and timeouts until a tick returns False or `ok()` fails;
+        `spin(timeout)`: deliver messages on this thread (ROS 2) instead of sleeping."""
+        period = self.cfg.period
+        while ok() and not self.stopped:
+            self.wake.clear()
+            with self.lock:
+                now = time.monotonic()
+                if self.pending is not None:
+                    deadline = self.pending + self.cfg.pair_window_s
+                    if now >= deadline:
+                        self._fire()  # the partner did not come: the newest there is
+                        continue
+                else:
+                    deadline = self.last + 1.5 * period
+                    if now >= deadline:
+                        self._fire(now)
+                        continue
+            left = min(deadline - now, 0.1)
+            if spin is not None:
+                spin(min(left, 0.005))
+            else:
+                self.wake.wait(left)
+        with self.lock:
+            self.stopped = True
+        if self.error is not None:
+            raise self.error
 
 
 # --- ROS I/O ------------------------------------------------------------------------------
@@ -436,9 +535,9 @@ class _Node:
                                    "is the hand's driver running?")
             time.sleep(0.01)
 
-    def spin_once(self) -> None:
+    def spin_once(self, timeout: float = 0.0) -> None:
         if self.cfg.ros_version == 2:
-            self._ros.spin_once(self._node, timeout_sec=0.0)
+            self._ros.spin_once(self._node, timeout_sec=timeout)
 
     def wait_for(self, what: str, latest: Latest, timeout: float) -> None:
         deadline = time.monotonic() + timeout
@@ -474,47 +573,16 @@ class _Node:
                 self._ros.shutdown()
 
     def loop_on(self, latest: Latest, tick: Callable[[float], bool], stats: LoopStats | None = None,
-                pair: Callable[[float], None] | None = None) -> None:
-        """Call tick(arrival time) after each new message of `latest`, at most rate_hz; when none
-        comes for 1.5 periods, tick anyway (the tick sees stale data and holds).
-
-        Messages closer than 0.75 periods to the last one ticked on are skipped (a driver that
-        publishes faster than the control rate), judged by their header stamps where they have
-        them (the hand's clock, free of transport jitter), else by arrival. Periods between two
-        ticked messages without a message count as overruns in stats. `pair(deadline)`, if
-        given, is called before a tick on a new message (it waits for the message's partners).
-        """
-        period = self.cfg.period
-        last = time.monotonic()  # the last tick: for the timeout
-        last_fresh: float | None = None  # arrival of the last message ticked on
-        last_stamp: int | None = None
-        seen = latest.count
-        while self.ok():
-            deadline = last + 1.5 * period
-            while latest.count == seen and time.monotonic() < deadline:
-                latest.arrived.wait(max(0.0, min(0.005, deadline - time.monotonic())))
-                latest.arrived.clear()
-                self.spin_once()
-            now = time.monotonic()
-            fresh = latest.count != seen
-            seen = latest.count
-            stamp = stamp_ns(latest.msg) if fresh else None
-            if fresh:
-                if stamp is not None and last_stamp is not None:
-                    gap = (stamp - last_stamp) * 1e-9
-                else:
-                    gap = np.inf if last_fresh is None else now - last_fresh
-                if gap < 0.75 * period:
-                    continue  # faster than the control rate: wait for the next one
-                if np.isfinite(gap) and gap > 1.5 * period and stats is not None and stats.commands:
-                    stats.overruns += int(round(gap / period)) - 1
-                last_stamp, last_fresh = stamp, now
-            last = now
-            arrived = latest.stamp if fresh else now
-            if fresh and pair is not None:
-                pair(arrived + self.cfg.pair_window_s)
-            if tick(arrived) is False:
-                break
+                paired: Callable[[], bool] | None = None, partner: Latest | None = None) -> None:
+        """Call tick(arrival time) for each new message of `latest`, at most rate_hz, until it returns
+        False or ROS shuts down (see `ArrivalTicker`); returns when the loop ends."""
+        ticker = ArrivalTicker(self.cfg, latest, tick, stats, paired, partner)
+        try:
+            ticker.run(self.ok, self.spin_once if self.cfg.ros_version == 2 else None)
+        finally:
+            latest.listener = None
+            if partner is not None:
+                partner.listener = None
 
     def shutdown(self, reason: str) -> None:
         if self.cfg.ros_version == 1:
@@ -581,7 +649,7 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
         if cfg.clock == "timer":
             node.loop(step, start, stats)
         else:
-            node.loop_on(tick.joints, step, stats, pair=tick.wait_for_pair)
+            node.loop_on(tick.joints, step, stats, paired=tick.paired, partner=tick.skin)
     finally:
         stats.unpaired = tick.unpaired
         if bag is not None:
