@@ -171,3 +171,40 @@ def test_every_stamped_state_is_ticked_despite_arrival_jitter():
     thread.join()
     assert ticked == list(range(1, len(sent) + 1))  # every state, once
     assert stats.overruns == 1
+
+
+def test_garbage_is_collected_between_ticks_only():
+    """Between `start` and `stop` nothing is collected automatically; `collect` (after a command)
+    runs the collections the thresholds ask for, and reference cycles are freed there."""
+    import gc
+    import weakref
+
+    class Node:
+        pass
+
+    collector = ros.IdleCollector()
+    seen: list[int] = []
+
+    def record(phase, info):
+        if phase == "start":
+            seen.append(info["generation"])
+
+    collector.start()
+    gc.callbacks.append(record)
+    try:
+        assert not gc.isenabled()
+        cycles = []
+        for _ in range(3 * gc.get_threshold()[0]):
+            a, b = Node(), Node()
+            a.other, b.other = b, a
+            cycles.append(weakref.ref(a))
+        del a, b
+        assert seen == [] and all(ref() is not None for ref in cycles)  # left for the idle time
+        for _ in range(20):
+            collector.collect()
+        assert seen and all(ref() is None for ref in cycles)
+    finally:
+        gc.callbacks.remove(record)
+        collector.stop()
+        gc.unfreeze()
+    assert gc.isenabled()
