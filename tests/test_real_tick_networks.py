@@ -73,3 +73,23 @@ def test_controller_commands_are_unchanged_by_the_tick_networks(policy_file):
         vel = rng.normal(0, 0.5, q.shape)
         np.testing.assert_array_equal(fast.step(pose, vel, readings[0]), slow.step(pose, vel, readings[0]),
                                       err_msg=f"step {step}")
+
+
+def test_tick_networks_give_the_same_outputs_on_a_fresh_thread(policy_file):
+    """The ROS loop ticks on its receive threads: a thread's first call must round as any other."""
+    import threading
+
+    perception = TickPerception.wrap(load_perception(policy_file))
+    policy = TickPolicy.wrap(load_policy(policy_file)[0], str(policy_file))
+    rng = np.random.default_rng(6)
+    inputs = [(r, p) for _ in range(4) for _, r, p in frames(perception.num_taxels, rng)]
+    obs = rng.normal(0, 2, (len(inputs), policy.obs_dim)).astype(np.float32)
+    expected = [(perception(r, p), policy(o[None])) for (r, p), o in zip(inputs, obs)]
+    got = []
+    for (r, p), o in zip(inputs, obs):
+        thread = threading.Thread(target=lambda r=r, p=p, o=o: got.append((perception(r, p), policy(o[None]))))
+        thread.start()
+        thread.join()
+    for k, ((pe, ae), (pg, ag)) in enumerate(zip(expected, got)):
+        np.testing.assert_array_equal(pg, pe, err_msg=f"perception, frame {k}")
+        np.testing.assert_array_equal(ag, ae, err_msg=f"policy, frame {k}")

@@ -11,6 +11,12 @@ frame's active taxels, without the batch bookkeeping. The actor skips the Tensor
 wrapping. Every torch op is the one the models run, on the same operands, so the
 outputs are bit-identical to `OnlinePerception` and `load_policy` (a check at
 construction compares them and keeps the original networks if they ever differ).
+
+Threads: the ROS loop ticks on the threads that receive messages. Torch sets a thread's
+OpenMP/MKL thread count lazily, on its first parallel op; a first matmul before that
+ran on more threads and rounded differently (a few ulps in one tick, which then carries
+through the controller's state). Each call therefore asks `torch.get_num_threads()`
+first, which does that set-up.
 """
 
 from __future__ import annotations
@@ -91,6 +97,7 @@ class TickPerception:
 
     @torch.inference_mode()
     def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
+        torch.get_num_threads()  # sets this thread's torch threads up first (module docstring)
         readings = np.asarray(readings, np.float32)
         if readings.shape != (1, self.num_taxels) or np.asarray(taxel_pos).shape != (1, self.num_taxels, 3):
             return self.perception(readings, taxel_pos, joints)  # not one frame: the batched model
@@ -201,6 +208,7 @@ class TickPolicy:
 
     @torch.inference_mode()
     def __call__(self, obs: np.ndarray) -> np.ndarray:
+        torch.get_num_threads()  # sets this thread's torch threads up first (module docstring)
         x = torch.as_tensor(np.asarray(obs), dtype=torch.float32)
         if x.ndim != 2 or x.shape[1] != self.obs_dim:
             raise ValueError(f"the policy reads ({self.obs_dim},) observations, got shape {tuple(x.shape)}")
