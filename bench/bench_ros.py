@@ -30,6 +30,34 @@ import numpy as np
 from tacgnn.real.loopback_master import free_port, loopback_env, start_roscore, stop_roscore
 
 
+def busy_processes(seconds: float = 2.0, min_cpu: float = 10.0) -> list[dict]:
+    """Processes using more than `min_cpu` % of a core over `seconds` (the load a run competes with)."""
+    def sample() -> dict[int, tuple[int, int]]:
+        out = {}
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            out[int(stat.parent.name)] = (int(fields[11]) + int(fields[12]), int(fields[16]))  # utime+stime, nice
+        return out
+
+    before = sample()
+    time.sleep(seconds)
+    after = sample()
+    hz = os.sysconf("SC_CLK_TCK")
+    busy = []
+    for pid, (ticks, nice) in after.items():
+        cpu = 100.0 * (ticks - before.get(pid, (ticks, 0))[0]) / hz / seconds
+        if cpu >= min_cpu:
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                cmd = "?"
+            busy.append({"cpu_percent": round(cpu), "nice": nice, "command": cmd.strip()[:160]})
+    return sorted(busy, key=lambda p: -p["cpu_percent"])
+
+
 def make_calibration(folder: Path, policy: str) -> Path:
     """The calibration `calibrate-skin` finds for the simulated hand at rest (baseline 10, no noise)."""
     from tacgnn.learning.policy import load_policy
@@ -101,7 +129,7 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="bench_ros_"))
     calibration = make_calibration(work, policy)
     result: dict = {"policy": policy, "task": args.task, "nice": args.nice, "hand_args": args.hand_args,
-                    "load_average_start": os.getloadavg()}
+                    "load_average_start": os.getloadavg(), "busy_processes_start": busy_processes()}
     if args.reference and not args.minutes:
         result["reference"] = ref = reference(policy, calibration, args.task, args.episodes, args.seed)
         print(f"reference (no ROS, same episodes): success {ref['success_rate']:.3f} of {ref['episodes']}, "
@@ -144,7 +172,7 @@ def main() -> None:
     stats = json.loads((work / "stats.json").read_text())
     summary.pop("results")
     result.update(hand=summary, controller=stats, seconds=round(time.monotonic() - started, 1),
-                  load_average_end=os.getloadavg())
+                  load_average_end=os.getloadavg(), busy_processes_end=busy_processes())
     lat = stats["tick_to_command_ms"]
     print(f"through ROS: {summary['episodes']} episodes, success {summary['success_rate']:.3f}, "
           f"{summary['steps']} steps in {summary['seconds']:.0f} s")
@@ -156,6 +184,9 @@ def main() -> None:
     print(f"  tick-to-command p50 {lat['p50']} ms, p99 {lat['p99']} ms, max {lat['max']} ms; compute p50 "
           f"{stats['compute_ms']['p50']} ms, p99 {stats['compute_ms']['p99']} ms; load average "
           f"{result['load_average_start'][0]:.1f} -> {result['load_average_end'][0]:.1f}")
+    for when in ("start", "end"):
+        print(f"  busy processes at the {when}: " + "; ".join(
+            f"{p['cpu_percent']}% nice {p['nice']} {p['command'][:70]}" for p in result[f"busy_processes_{when}"]))
     if args.out:
         from tacgnn.provenance import provenance
 
