@@ -36,16 +36,27 @@ from tacgnn.learning.policy import load_perception, load_policy  # noqa: E402
 from tacgnn.provenance import provenance  # noqa: E402
 
 
+def ball_errors_cm(perceived: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N, 2) distance (cm) of each true ball from its perceived one, the pair matched the cheaper way."""
+    p, t = perceived.reshape(-1, 2, 3), truth.reshape(-1, 2, 3)
+    straight = np.linalg.norm(p - t, axis=2)
+    crossed = np.linalg.norm(p[:, ::-1] - t, axis=2)
+    keep = straight.mean(1, keepdims=True) <= crossed.mean(1, keepdims=True)
+    return 100 * np.where(keep, straight, crossed)
+
+
 def perception_error_cm(perceived: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """(N,) mean distance (cm) of the two perceived balls from the true ones, matched the cheaper way."""
-    p, t = perceived.reshape(-1, 2, 3), truth.reshape(-1, 2, 3)
-    straight = np.linalg.norm(p - t, axis=2).mean(1)
-    crossed = np.linalg.norm(p[:, ::-1] - t, axis=2).mean(1)
-    return 100 * np.minimum(straight, crossed)
+    return ball_errors_cm(perceived, truth).mean(1)
 
 
 def run_episodes(checkpoint: str, episodes: int, seed: int, changes: dict, perception_file: Path | None) -> dict:
-    """Angles (deg, per step) of `episodes` first episodes, the step each ended, falls, perception errors."""
+    """Angles (deg, per step) of `episodes` first episodes, the step each ended, falls, perception errors.
+
+    Also each ball's perception error per step (``ball_errors``, (steps, N, 2) cm) and the balls' palm
+    coordinates (normal, across, along; m) at each episode's last step (``end_palm``), which say which
+    fall rule ended it.
+    """
     policy, stored = load_policy(checkpoint)
     cfg = override(replace(stored, task="continuous", num_envs=episodes, seed=seed), changes)
     perception = load_perception(checkpoint) if cfg.obs_mode == "perceived" else None
@@ -56,6 +67,8 @@ def run_episodes(checkpoint: str, episodes: int, seed: int, changes: dict, perce
     obs, _ = env.reset(seed=seed)
     n, limit = episodes, env.episode_limit
     angles, errors = np.full((limit, n), np.nan), np.full((limit, n), np.nan)
+    ball_errors = np.full((limit, n, 2), np.nan)
+    end_palm = np.full((n, 2, 3), np.nan)
     ended, fell = np.full(n, -1), np.zeros(n, bool)
     for t in range(limit):
         obs, _, terminated, truncated, info = env.step(policy(obs))
@@ -63,12 +76,15 @@ def run_episodes(checkpoint: str, episodes: int, seed: int, changes: dict, perce
         angles[t, live] = info["angle_deg"][live]
         done = live & (terminated | truncated)
         if perception is not None:  # perceived_balls: this step's prediction, except where an episode ended
-            err = perception_error_cm(env.perceived_balls, info["ball_pos"].reshape(n, 6))
-            errors[t, live & ~done] = err[live & ~done]
+            err = ball_errors_cm(env.perceived_balls, info["ball_pos"].reshape(n, 6))
+            errors[t, live & ~done] = err[live & ~done].mean(1)
+            ball_errors[t, live & ~done] = err[live & ~done]
+        end_palm[done] = ((info["ball_pos"] - env.palm_centre) @ env.palm_axes)[done]
         fell[done] = info["fall"][done]
         ended[done] = t
-    return {"config": cfg, "angles": angles, "ended": ended, "fell": fell,
-            "errors": errors if perception is not None else None}
+    return {"config": cfg, "angles": angles, "ended": ended, "fell": fell, "end_palm": end_palm,
+            "errors": errors if perception is not None else None,
+            "ball_errors": ball_errors if perception is not None else None}
 
 
 def film(checkpoint: str, out: Path, seed: int, changes: dict, perception_file: Path | None) -> None:
