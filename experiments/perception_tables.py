@@ -203,8 +203,9 @@ def main() -> None:
             for m, ch in chosen(TABLE1_MODELS, args):
                 for obj in args.objects:
                     run(obj, m, ch, s, data[obj], args)
-        args.report = True  # the page shows the complete runs; columns left out by --models stay "not run"
-        write_table1_results(data, args, seeds)
+        trained, args.report = not args.report, True  # the page shows the complete runs ("not run" for others)
+        if trained:  # result files carry the command that trained them, not a later --report
+            write_table1_results(data, args, seeds)
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
         (ROOT / "docs" / f"{page_stem('perception_table1', args)}.md").write_text(text)
         print(text)
@@ -303,12 +304,12 @@ def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
 
 
 def write_table1_results(data: dict[str, Path], args, seeds) -> None:
-    """results/table1/OBJECT_MODEL_sSEED.json of every complete Table I run: its final train and
-    test errors, seconds per epoch and provenance."""
+    """results/table1/OBJECT_MODEL_sSEED.json of every complete Table I run this invocation
+    trained (--models, --objects): its final train and test errors, seconds per epoch and provenance."""
     out = ROOT / "results" / "table1"
     out.mkdir(parents=True, exist_ok=True)
     for obj in (o for o in OBJECTS if o in data):
-        for m, ch in TABLE1_MODELS:
+        for m, ch in chosen(TABLE1_MODELS, args):
             for s in seeds:
                 r = run(obj, m, ch, s, data[obj], args)
                 if not r:
