@@ -9,8 +9,9 @@ far more than the work (15x slower than a serial copy at equal priority under lo
 Here the same kernels are compiled serially, and the layers are called directly on the
 frame's active taxels, without the batch bookkeeping. The actor skips the TensorDict
 wrapping. Every torch op is the one the models run, on the same operands, so the
-outputs are bit-identical to `OnlinePerception` and `load_policy` (a check at
-construction compares them and keeps the original networks if they ever differ).
+outputs are bit-identical to `OnlinePerception` and `load_policy` (the actor is compared
+with the loaded policy at construction and the loaded one kept if they differ; the
+perception's sameness is asserted by tests/test_real_tick_networks.py, not at run time).
 
 Threads: the ROS loop ticks on the threads that receive messages. Torch sets a thread's
 OpenMP/MKL thread count lazily, on its first parallel op; a first matmul before that
