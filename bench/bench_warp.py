@@ -103,7 +103,9 @@ def host_traffic(env: BaodingEnv, actions: list[np.ndarray], host_fed: bool = Fa
     sim, tactile = env.sim, env.tactile
     mirror, engine, skin = sim.mirror, sim.host_bytes, tactile.host_bytes
     sim.mirror = True  # on the CPU the "mirrors" are the views themselves: copying them changes nothing
+    host_sensors = sim.host_sensors
     if host_fed:
+        sim.host_sensors = None  # the skin reads its contact slots on the host: the mirror copies them too
         tactile.engine_readings = lambda sim, ids, rng: tactile.readings(sim.sensordata[ids], sim.xpos[ids],
                                                                          sim.xmat[ids], rng)
         tactile.engine_positions = lambda sim, ids: tactile.positions(sim.xpos[ids], sim.xmat[ids])
@@ -111,7 +113,7 @@ def host_traffic(env: BaodingEnv, actions: list[np.ndarray], host_fed: bool = Fa
         for action in actions:
             env.step(action)
     finally:
-        sim.mirror = mirror
+        sim.mirror, sim.host_sensors = mirror, host_sensors
         if host_fed:
             del tactile.engine_readings, tactile.engine_positions  # back to the class's methods
     steps = len(actions) * env.num_envs

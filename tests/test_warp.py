@@ -19,8 +19,9 @@ import mujoco.batch  # noqa: E402
 
 from tacgnn.config import ConfigError  # noqa: E402
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig  # noqa: E402
+from tacgnn.sim.backend import make_sim  # noqa: E402
 from tacgnn.sim.scene import SimConfig  # noqa: E402
-from tacgnn.sim.tactile import TactileModel  # noqa: E402
+from tacgnn.sim.tactile import TactileModel, skin_sensor_columns  # noqa: E402
 from tacgnn.sim.tactile_device import DeviceTactile  # noqa: E402
 from tacgnn.sim.warp_backend import WarpSim, WarpUnavailable  # noqa: E402
 
@@ -220,6 +221,32 @@ def test_host_mirror_path_equals_the_views(pair):
     state = sum(getattr(mirror, n).nbytes for n in ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart"))
     read = sum(getattr(mirror, n).nbytes for n in ("xpos", "xmat", "sensordata", "actuator_force"))
     assert view.host_bytes == 0 and mirror.host_bytes - before >= 2 * state + read
+
+
+def test_host_mirror_leaves_the_skins_sensor_columns_on_the_device(pair):
+    """The env's Warp sim (`make_sim`) copies down only the sensordata columns host code reads
+    (the balls' contact sensors): the skin's columns stay on the device, NaN on the host, and
+    each step moves exactly their bytes less than a mirror of everything."""
+    c, _ = pair
+    skin_columns = skin_sensor_columns(c.model)
+    assert len(skin_columns) > 0 and c.model.nsensordata > len(skin_columns)
+    host = np.setdiff1d(np.arange(c.model.nsensordata), skin_columns)
+    np.testing.assert_array_equal(make_sim(c.model, 2, replace(CFG.sim, backend="warp")).host_sensors, host)
+    full = WarpSim(c.model, 2, mirror=True)
+    part = WarpSim(c.model, 2, mirror=True, device_only_sensors=skin_columns)  # as make_sim's on a GPU
+    for sim in (full, part):
+        sim.qpos[:] = c.sim.qpos[:2]
+        sim.ctrl[:] = c.sim.ctrl[:2]
+        sim.forward()
+    bytes_before = full.host_bytes, part.host_bytes
+    full.step(1)
+    part.step(1)
+    np.testing.assert_array_equal(part.sensordata[:, host], full.sensordata[:, host])
+    assert np.isnan(part.sensordata[:, skin_columns]).all()
+    assert (full.sensordata[:, skin_columns] != 0).any()  # the skin is pressed: there was something to skip
+    np.testing.assert_array_equal(part.device_views()["sensordata"].numpy(), full.sensordata)
+    saved = (full.host_bytes - bytes_before[0]) - (part.host_bytes - bytes_before[1])
+    assert saved == 2 * len(skin_columns) * full.sensordata.itemsize
 
 
 def test_forward_of_some_envs_leaves_the_others_derived_arrays(pair):

@@ -14,14 +14,15 @@ import numpy as np
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.sim.batched import BatchedSim
 from tacgnn.sim.scene import SimConfig
-from tacgnn.sim.tactile import TactileModel
+from tacgnn.sim.tactile import TactileModel, skin_sensor_columns
 
 
 def make_sim(model: mujoco.MjModel, num_envs: int, sim: SimConfig):
     """A `BatchedSim` (backend 'c') or a `WarpSim` (backend 'warp') of `num_envs` envs."""
     if sim.backend == "warp":
         from tacgnn.sim.warp_backend import WarpSim  # imports warp only when asked for
-        return WarpSim(model, num_envs, device=sim.device, nconmax=sim.warp_nconmax, njmax=sim.warp_njmax)
+        return WarpSim(model, num_envs, device=sim.device, nconmax=sim.warp_nconmax, njmax=sim.warp_njmax,
+                       device_only_sensors=skin_sensor_columns(model))
     return BatchedSim(model, num_envs, nthread=sim.nthread)
 
 
@@ -31,7 +32,6 @@ def make_tactile(layout: SkinLayout, model: mujoco.MjModel, sim: SimConfig):
         from tacgnn.sim.tactile_device import DeviceTactile
         return DeviceTactile(layout, model, device=sim.device)
     return TactileModel(layout, model)
-
 
 
 def skin_readings(tactile, sim, ids: slice | np.ndarray, rng: np.random.Generator | None) -> np.ndarray:

@@ -87,6 +87,13 @@ def sensor_name(patch_name: str) -> str:
     return f"skin_{patch_name}"
 
 
+def skin_sensor_columns(model: mujoco.MjModel) -> np.ndarray:
+    """The sensordata columns the skin's contact sensors fill (those named by `sensor_name`)."""
+    columns = [np.arange(s.adr[0], s.adr[0] + s.dim[0]) for s in map(model.sensor, range(model.nsensor))
+               if s.name.startswith(sensor_name(""))]
+    return np.concatenate(columns) if columns else np.zeros(0, dtype=np.int64)
+
+
 def add_skin_sensors(spec: mujoco.MjSpec, layout: SkinLayout, contacts_per_patch: int) -> None:
     """Add one contact sensor per patch, reporting the patch link's strongest contacts."""
     body_names = {b.name for b in spec.bodies}

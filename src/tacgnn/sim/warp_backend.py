@@ -103,10 +103,14 @@ class WarpSim:
         njmax: constraint rows per world.
         max_speed: |qvel| above which an env counts as diverged.
         mirror: keep host copies of the arrays (forced on a GPU; on the CPU, for tests).
+        device_only_sensors: sensordata columns that only code on the device reads (the skin's
+            contact slots: `tactile_device` reads them there); the host mirror skips them and
+            holds NaN in their place, so a host read of them is loud rather than stale.
 
     Attributes: as `BatchedSim`; all (N, ...) numpy arrays, float32. And:
         host_bytes: bytes copied between the host mirrors and the device so far (0 without mirrors):
             what a GPU run moves over the bus.
+        host_sensors: the sensordata columns the mirror copies down (None: all of them).
     """
 
     # set from the Data fields of the same names in __init__ (_STATE, _DERIVED, time)
@@ -122,7 +126,8 @@ class WarpSim:
     time: np.ndarray
 
     def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cpu", nconmax: int = 64,
-                 njmax: int = 256, max_speed: float = 1000.0, mirror: bool | None = None):
+                 njmax: int = 256, max_speed: float = 1000.0, mirror: bool | None = None,
+                 device_only_sensors: np.ndarray | None = None):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         wp, mjw = import_warp()
@@ -152,6 +157,12 @@ class WarpSim:
         for name in _STATE + _DERIVED + ("time",):
             setattr(self, name, self._view(getattr(self.wdata, name)))
         self.xmat = self.xmat.reshape(num_envs, model.nbody, 9)  # (N, nbody, 3, 3) -> C's layout
+        self.host_sensors: np.ndarray | None = None
+        self._host_sensor_index: Any = None  # host_sensors as a torch index on the device
+        if device_only_sensors is not None and len(device_only_sensors):
+            self.host_sensors = np.setdiff1d(np.arange(self.sensordata.shape[1]), device_only_sensors)
+            if self.mirror:
+                self.sensordata[:, device_only_sensors] = np.nan
 
     # --- arrays ------------------------------------------------------------------------
     def _view(self, array) -> np.ndarray:
@@ -174,8 +185,22 @@ class WarpSim:
             return
         for name in names:
             host = getattr(self, name)
+            if name == "sensordata" and self.host_sensors is not None:
+                self._download_host_sensors()
+                continue
             host[...] = getattr(self.wdata, name).numpy().reshape(host.shape)
             self.host_bytes += host.nbytes
+
+    def _download_host_sensors(self) -> None:
+        """Copy down only the `host_sensors` columns of sensordata, gathered on the device."""
+        import torch
+
+        sensordata = self.device_views()["sensordata"]
+        if self._host_sensor_index is None:
+            self._host_sensor_index = torch.as_tensor(self.host_sensors, device=sensordata.device)
+        rows = sensordata[:, self._host_sensor_index].cpu().numpy()
+        self.sensordata[:, self.host_sensors] = rows
+        self.host_bytes += rows.nbytes
 
     @property
     def batch(self) -> WarpSim:
