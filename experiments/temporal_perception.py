@@ -149,6 +149,8 @@ def main() -> None:
             "train_seconds": sum(h["seconds"] for h in history),
             "train_frames": len(train_set) if own else None,
             "train_episodes": len(train_set.episodes()) if own else None,
+            "extra_train": list(cfg.extra_train),  # datasets whose episodes were all trained on
+            "extra_train_frames": payload.get("dataset", {}).get("extra_train_frames", 0),
             "test_frames": len(test_set), "test_episodes": len(test_set.episodes()), **metrics,
             "by_steps_since_touch": since_touch_curve(pred, cfg, test_set, BINS),
             "history_test_rmse_cm": [h["test/position_rmse_cm"] for h in history],

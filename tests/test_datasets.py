@@ -247,3 +247,30 @@ def test_make_dataset_rerun_repairs_a_corrupt_shard(tmp_path):
     repaired = load(out)
     assert all(np.array_equal(repaired[k], straight[k]) for k in straight)
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_episode_filter_keeps_only_episodes_that_reach_the_step():
+    from tacgnn.datasets.baoding_data import EpisodeFilter
+
+    held = EpisodeFilter(num_envs=2, min_steps=3)
+    out = []
+    for step in range(1, 5):  # env 0 runs 4 steps; env 1 ends after step 2 and starts again
+        frame = {"step": np.array([step, step if step <= 2 else step - 2]), "env": np.array([0, 1])}
+        out += held.add(frame, np.array([True, True]), frame["step"])
+        held.end(np.array([False, step == 2]))
+    kept = [(int(f["env"][0]), int(f["step"][0])) for f in out]
+    assert kept == [(0, 1), (0, 2), (0, 3), (0, 4)]  # env 1's short episode and its new one (2 steps) dropped
+    frame = {"step": np.array([7, 9])}
+    assert EpisodeFilter(2, 0).add(frame, np.array([True, True]), frame["step"]) == [frame]
+
+
+def test_generation_keeps_long_episodes_whole():
+    from tacgnn.datasets.baoding_data import record_shard
+
+    cfg = BaodingDataConfig(samples=300, shard_size=300, num_envs=8, settle_steps=0, keep_every=1, min_episode_steps=30)
+    data = record_shard(cfg, 0)
+    cut = data["episode"][-1]  # the shard's last episode may be cut short
+    for e in np.unique(data["episode"]):
+        steps = np.sort(data["step"][data["episode"] == e])
+        assert np.array_equal(steps, np.arange(1, len(steps) + 1))  # from its first step, none missing
+        assert e == cut or steps[-1] >= 30

@@ -93,3 +93,28 @@ def test_single_frame_on_the_same_split_reads_frames_one_by_one(tmp_path, datase
     cfg = dataclasses.replace(config(epochs=1), temporal=False, batch_size=16)
     final = train_sequence(cfg, dataset, tmp_path / "f", log=quiet)
     assert 0 < final["test/position_rmse_cm"] < 10
+
+
+def test_extra_training_episodes_join_training_and_leave_the_test_episodes(tmp_path, dataset):
+    extra = write_dataset(tmp_path / "extra", episodes(4, 20, seed=5))  # ids that collide with the main ones
+    logs: list[str] = []
+    cfg = config(epochs=1, extra_train=(str(extra),))
+    final = train_sequence(cfg, dataset, tmp_path / "run", log=logs.append)
+    plain = train_sequence(config(epochs=1), dataset, tmp_path / "plain", log=quiet)
+    # 10 of the main 12 episodes train (80 %), and the 4 extra ones
+    assert any("280 training frames in 14 episodes" in line for line in logs)
+    payload = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    assert payload["dataset"]["extra_train_frames"] == 80 and payload["config"]["extra_train"] == [str(extra)]
+    # the test episodes are the main dataset's own: the metrics come from the same frames
+    assert final["test/position_rmse_cm"] != plain["test/position_rmse_cm"]
+    assert evaluate_sequence(tmp_path / "run" / "checkpoint.pt", dataset)["position_rmse_cm"] == \
+        pytest.approx(final["test/position_rmse_cm"])
+    from tacgnn.datasets.baoding_data import schema
+    from tacgnn.datasets.store import DatasetError, ShardedWriter
+
+    fewer = episodes(2, 20, seed=6)
+    fewer = {**fewer, "tactile": fewer["tactile"][:, :95], "taxel_pos": fewer["taxel_pos"][:, :95]}
+    ShardedWriter(tmp_path / "fewer", schema(95), {"kind": "baoding", "num_taxels": 95}, num_shards=1,
+                  shard_size=40).generate_missing(lambda i: fewer)
+    with pytest.raises(DatasetError, match=r"fewer \(extra_train\): has 95 taxels"):
+        train_sequence(config(epochs=1, extra_train=(str(tmp_path / "fewer"),)), dataset, tmp_path / "bad", log=quiet)

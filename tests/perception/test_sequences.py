@@ -10,6 +10,7 @@ from tacgnn.perception.sequences import (
     SequenceData,
     burn_in_rows,
     check_windows,
+    join_episodes,
     load_sequences,
     split_by_episode,
     steps_since_touch,
@@ -107,3 +108,22 @@ def test_touch_and_steps_since_touch():
     since = steps_since_touch(data, touch)
     assert since[:, 0].tolist() == [0, 1, 2, 0, 1, 2]  # a new episode counts from its first frame
     assert since[:, 1].tolist() == [1, 2, 3, 4, 1, 2]
+
+
+def test_joined_episodes_get_ids_of_their_own_and_keep_their_frames(arrays):
+    a = to_sequence_data(arrays)
+    b = to_sequence_data(episodes(3, 12, seed=1))  # the same ids as a's first three episodes
+    joined = join_episodes([a, b])
+    assert len(joined) == len(a) + len(b)
+    assert torch.equal(joined.episode[:len(a)], a.episode)  # the first part keeps its ids
+    assert len(torch.unique(joined.episode)) == len(a.episodes()) + len(b.episodes())
+    assert torch.equal(joined.frames.readings[len(a):], b.frames.readings)
+    assert torch.equal(joined.step[len(a):], b.step) and torch.equal(joined.actions[len(a):], b.actions)
+    # windows of the joined data stay inside one episode of one part
+    starts = window_starts(joined, 10)
+    check_windows(joined, starts.unsqueeze(1) + torch.arange(10))
+    assert len(starts) == len(window_starts(a, 10)) + len(window_starts(b, 10))
+    narrow = SequenceData(b.frames.subset(torch.arange(len(b))), b.actions, b.episode, b.step)
+    narrow.frames.readings = narrow.frames.readings[:, :50]
+    with pytest.raises(ValueError, match="different numbers of taxels"):
+        join_episodes([a, narrow])

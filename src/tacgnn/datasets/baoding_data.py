@@ -10,7 +10,8 @@ only the simulator's.
 Samples come from rollouts of a controller that keeps the balls moving (the scripted
 `FingerWave` now, a trained policy later). Frames of the first `settle_steps` steps of
 an episode (balls still dropping from the spawn) and the last frame of an episode that
-ended (a ball falling away) are left out.
+ended (a ball falling away) are left out; with `min_episode_steps` so are the episodes that
+end before that step.
 
 Every frame also carries what a temporal model needs to put frames back in order: its
 ``episode`` (an id unique in the dataset) and ``step`` (control steps since the episode's
@@ -47,6 +48,9 @@ class BaodingDataConfig:
     """A ground-truth PPO checkpoint to drive the balls ('' = the scripted finger wave)."""
     action_noise: float = 0.1
     """Gaussian noise (action units) on the policy's actions, for more varied contacts."""
+    min_episode_steps: int = 0
+    """Keep only the episodes still running at this step (0: all), every frame of them from
+    their start: data from the long holds that a good policy rarely reaches."""
     env: BaodingConfig = field(default_factory=lambda: BaodingConfig(obs_mode="tactile"))
 
     def __post_init__(self) -> None:
@@ -57,6 +61,7 @@ class BaodingDataConfig:
         check(self.keep_every >= 1, "keep_every", "must be >= 1")
         check(self.settle_steps >= 0, "settle_steps", f"must be >= 0, got {self.settle_steps}")
         check(self.action_noise >= 0, "action_noise", f"must be >= 0, got {self.action_noise}")
+        check(self.min_episode_steps >= 0, "min_episode_steps", f"must be >= 0, got {self.min_episode_steps}")
         check(self.env.obs_mode == "tactile", "env.obs_mode", "the dataset records the 'tactile' observation")
 
 
@@ -108,29 +113,63 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
             (lambda e, s: FingerWave(e.last_action[0], cfg.num_envs, seed=s))
     act = controller(env, seed)
     out: dict[str, list] = {k: [] for k in schema(env.tactile.num_taxels)}
+    held = EpisodeFilter(cfg.num_envs, cfg.min_episode_steps)
     count, step = 0, 0
     episode_of_env = (index * cfg.num_envs + np.arange(cfg.num_envs)) * EPISODES_PER_ENV  # unique in the dataset
     while count < cfg.shard_size:
         obs, _, terminated, truncated, info = env.step(act(obs))
         step += 1
         episode = episode_of_env.copy()  # of this step's frame; an env that ended starts its next one
-        episode_of_env += terminated | truncated
+        ended = terminated | truncated
+        episode_of_env += ended
         # joints of the recorded instant: the pre-reset observation of this step
         joints = info["final_obs"]["proprio"] if "final_obs" in info else obs["proprio"]
-        keep = ~(terminated | truncated) & (info["episode_steps"] > cfg.settle_steps)
+        keep = ~ended & (info["episode_steps"] > cfg.settle_steps)
         keep &= (np.arange(cfg.num_envs) + step) % cfg.keep_every == 0
-        if not keep.any():
-            continue
-        out["tactile"].append(info["tactile"][keep])
-        out["taxel_pos"].append(info["taxel_pos"][keep])
-        out["joint_pos"].append(env.joint_low + (joints[keep, :16] + 1) * 0.5 * (env.joint_high - env.joint_low))
-        out["joint_vel"].append(joints[keep, 16:32] / 0.2)
-        out["ball_pos"].append(info["ball_pos"][keep])
-        out["action"].append(env.last_action[keep])  # the command of this step (clipped), before any reset
-        out["episode"].append(episode[keep])
-        out["step"].append(info["episode_steps"][keep])
-        count += int(keep.sum())
+        if keep.any():
+            frame = {
+                "tactile": info["tactile"][keep],
+                "taxel_pos": info["taxel_pos"][keep],
+                "joint_pos": env.joint_low + (joints[keep, :16] + 1) * 0.5 * (env.joint_high - env.joint_low),
+                "joint_vel": joints[keep, 16:32] / 0.2,
+                "ball_pos": info["ball_pos"][keep],
+                "action": env.last_action[keep],  # the command of this step (clipped), before any reset
+                "episode": episode[keep],
+                "step": info["episode_steps"][keep],
+            }
+            for part in held.add(frame, keep, info["episode_steps"]):
+                for k, v in part.items():
+                    out[k].append(v)
+                count += len(part["step"])
+        held.end(ended)
     return {k: np.concatenate(v)[:cfg.shard_size] for k, v in out.items()}
+
+
+class EpisodeFilter:
+    """Holds back each env's frames until its episode reaches `min_steps` steps, then lets the
+    held frames and all later ones through; an episode that ends sooner is dropped."""
+
+    def __init__(self, num_envs: int, min_steps: int) -> None:
+        self.min_steps = min_steps
+        self.held: list[list[dict[str, np.ndarray]]] = [[] for _ in range(num_envs)]
+
+    def add(self, frame: dict[str, np.ndarray], envs: np.ndarray, steps: np.ndarray) -> list[dict[str, np.ndarray]]:
+        """The frames to record now, from this step's `frame` (rows: the envs where `envs` is True)
+        and the envs' episode steps."""
+        if self.min_steps == 0:
+            return [frame]
+        out = []
+        for row, e in enumerate(np.flatnonzero(envs)):
+            self.held[e].append({k: v[row:row + 1] for k, v in frame.items()})
+            if steps[e] >= self.min_steps:
+                out.extend(self.held[e])
+                self.held[e] = []
+        return out
+
+    def end(self, ended: np.ndarray) -> None:
+        """Drop the held frames of the envs whose episode ended (and did not reach `min_steps`)."""
+        for e in np.flatnonzero(ended):
+            self.held[e] = []
 
 
 def policy_controller(policy: Policy, action_noise: float):

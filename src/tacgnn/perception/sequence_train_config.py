@@ -40,6 +40,9 @@ class SequenceTrainConfig:
     train_fraction: float = 0.8
     max_frames: int = 0
     """Use only the first episodes of the dataset, up to this many frames (0: all)."""
+    extra_train: tuple[str, ...] = ()
+    """Datasets whose episodes all go to training, added after the split by episode: the
+    test episodes stay those of the main dataset (e.g. more data of rare long holds)."""
     seed: int = 0
     threads: int = 1
     match_balls: bool = True
@@ -59,6 +62,8 @@ class SequenceTrainConfig:
         check(0 < self.lr_decay <= 1, "lr_decay", f"must be in (0, 1], got {self.lr_decay}")
         check(0 < self.train_fraction < 1, "train_fraction", f"must be in (0, 1), got {self.train_fraction}")
         check(self.max_frames >= 0, "max_frames", f"must be >= 0, got {self.max_frames}")
+        check(all(isinstance(p, str) and p for p in self.extra_train), "extra_train",
+              f"must be a list of dataset folders, got {self.extra_train!r}")
         check(1 <= self.threads <= MAX_THREADS, "threads", f"must be in 1..{MAX_THREADS}, got {self.threads}")
         check(self.eval_from_step >= 0, "eval_from_step", f"must be >= 0, got {self.eval_from_step}")
         check(self.model.out_dim == 6, "model.out_dim", f"ball positions are 6 values, got {self.model.out_dim}")

@@ -7,6 +7,9 @@ One step of a temporal model, for `batch_size` windows drawn from the training e
     window    `window` frames with gradient from that (detached) state; the loss is the
               mean over all frames of the permutation-invariant ball MSE
 
+The episodes of `extra_train` datasets join the training episodes after the split, so the
+test episodes stay the main dataset's.
+
 A run folder holds `checkpoint.pt` (after every epoch, atomically; kind "sequence", see
 :mod:`tacgnn.perception.sequence_checkpoint`) and `history.json`. The windows of epoch e
 are drawn from seed + e, so a resumed run (with as many or more epochs) equals an uninterrupted one.
@@ -36,6 +39,7 @@ from tacgnn.perception.sequences import (
     SequenceData,
     burn_in_rows,
     check_windows,
+    join_episodes,
     load_sequences,
     split_by_episode,
     window_starts,
@@ -81,6 +85,15 @@ def frame_loss(model: nn.Module, data: SequenceData, rows: Tensor, objective: Ob
     return objective.loss(model(data.frames.readings[rows], data.frames.positions[rows]), data.frames.targets[rows])
 
 
+def load_extra(path: str, cfg: SequenceTrainConfig) -> SequenceData:
+    """An `extra_train` dataset (every frame), checked against the model's taxels."""
+    data = load_sequences(path)
+    if data.frames.readings.shape[1] != cfg.model.frame.num_taxels:
+        raise DatasetError(f"{path} (extra_train): has {data.frames.readings.shape[1]} taxels, "
+                           f"model.frame.num_taxels is {cfg.model.frame.num_taxels}")
+    return data
+
+
 def train_sequence(cfg: SequenceTrainConfig, dataset: str | Path, run_dir: str | Path, resume: bool = False,
                    log: Callable[[str], object] = print) -> dict:
     """Train on `dataset` (episode and step indices needed); return the last epoch's metrics."""
@@ -94,6 +107,11 @@ def train_sequence(cfg: SequenceTrainConfig, dataset: str | Path, run_dir: str |
         raise DatasetError(f"{dataset}: has {data.frames.readings.shape[1]} taxels, model.frame.num_taxels is "
                            f"{cfg.model.frame.num_taxels}")
     train_set, test_set = split_by_episode(data, cfg.train_fraction, cfg.seed)
+    extra = [load_extra(path, cfg) for path in cfg.extra_train]
+    if extra:
+        train_set = join_episodes([train_set, *extra])
+        log(f"training episodes: {len(train_set.episodes())} ({sum(len(e.episodes()) for e in extra)} from "
+            f"{', '.join(cfg.extra_train)}, {sum(len(e) for e in extra)} frames)")
     starts = window_starts(train_set, cfg.window) if cfg.temporal else torch.arange(len(train_set))
     objective = Objective("baoding", cfg.match_balls)
 
@@ -148,7 +166,8 @@ def train_sequence(cfg: SequenceTrainConfig, dataset: str | Path, run_dir: str |
             "format_version": CHECKPOINT_VERSION, "kind": KIND, "config": to_dict(cfg), "epoch": epoch,
             "model": model.state_dict(), "optimizer": optim.state_dict(), "history": history,
             "dataset": {"path": str(dataset), "num_taxels": cfg.model.frame.num_taxels, "kind": meta.get("kind"),
-                        "frames": len(data), "episodes": len(data.episodes())},
+                        "frames": len(data), "episodes": len(data.episodes()),
+                        "extra_train_frames": sum(len(e) for e in extra)},
         })
         atomic_write_text(run_dir / "history.json", json.dumps(history, indent=1))
     return history[-1]

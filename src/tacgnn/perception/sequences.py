@@ -115,6 +115,35 @@ def split_by_episode(data: SequenceData, train_fraction: float, seed: int) -> tu
     return data.subset(in_train.nonzero().squeeze(1)), data.subset((~in_train).nonzero().squeeze(1))
 
 
+def join_episodes(parts: list[SequenceData]) -> SequenceData:
+    """The frames of several datasets' episodes in one; the first part keeps its episode ids, each
+    later part's are shifted past those before it (keeping their order), so no two share an id.
+
+    Training adds the episodes of other datasets this way (``extra_train``) after the split,
+    so the test episodes stay those of the main dataset alone.
+    """
+    if not parts:
+        raise ValueError("join_episodes needs at least one part")
+    joints = [p.frames.joints for p in parts]
+    if any(j is None for j in joints) and not all(j is None for j in joints):
+        raise ValueError("parts with and without joint angles cannot be joined")
+    widths = {p.frames.readings.shape[1] for p in parts}
+    if len(widths) > 1:
+        raise ValueError(f"parts with different numbers of taxels cannot be joined: {sorted(widths)}")
+    episodes: list[torch.Tensor] = []
+    offset = None  # the first part keeps its ids
+    for p in parts:
+        shifted = p.episode if offset is None or not len(p) else p.episode - int(p.episode.min()) + offset
+        episodes.append(shifted)
+        if len(p):
+            offset = max(offset or 0, int(shifted.max()) + 1)
+    frames = TactileData(torch.cat([p.frames.readings for p in parts]), torch.cat([p.frames.positions for p in parts]),
+                         torch.cat([p.frames.targets for p in parts]),
+                         None if joints[0] is None else torch.cat([j for j in joints if j is not None]))
+    return SequenceData(frames, torch.cat([p.actions for p in parts]), torch.cat(episodes),
+                        torch.cat([p.step for p in parts]))
+
+
 def window_starts(data: SequenceData, length: int) -> torch.Tensor:
     """Rows where a window of `length` consecutive frames of one episode can start.
 
