@@ -5,6 +5,7 @@ Prints:
     with 2 and 1 torch threads (target >= 20,000 graphs/s), first with the
     default glibc allocator, then after ``keep_freed_memory()``, then with the
     graphs built by the torch graph ops instead of the numba kernels;
+  * TacGNN inference on one frame at a time (a control tick), ms per frame;
   * MLP / CNN / GCN inference graphs/s at batch 256;
   * TacGNN-32 training time for 10 epochs x 25,000 samples at batch 32 with
     Adam (target < 2 min), 1 thread unless ``--train-threads 1 2``. By
@@ -145,6 +146,17 @@ def main() -> None:
             ours_joints(readings, positions, joints)
         print(f"TacGNN-32, training defaults + 16 joint angles, 1 thread: "
               f"{20 * len(readings) / (time.perf_counter() - start):,.0f} graphs/s (one round of 20 batches)")
+
+    with torch.inference_mode():  # one frame per call, as the real-hand controller's tick
+        times = []
+        for i in range(3 * len(readings)):
+            j = i % len(readings)
+            start = time.perf_counter()
+            ours(readings[j:j + 1], positions[j:j + 1])
+            times.append(time.perf_counter() - start)
+        times = sorted(times[len(readings):])  # the first round warms up
+        print(f"TacGNN-32, training defaults, one frame per call, 1 thread: p50 {1e3 * times[len(times) // 2]:.2f} ms, "
+              f"p99 {1e3 * times[int(0.99 * len(times))]:.2f} ms per frame [load {load()}]")
 
     if args.profile:
         from torch.profiler import ProfilerActivity, profile

@@ -237,3 +237,24 @@ def test_compiled_fps_matches_naive(sizes, ratio):
     centroid = lambda p: int(((p - p.mean(0)) ** 2).sum(1).argmax())  # noqa: E731
     got = graph_numba.fps_rows(pos, counts, fps_counts(counts, ratio), centroid_start=True)
     assert got.tolist() == naive_fps(pos, batch, ratio, start_fn=centroid)
+
+
+def test_one_graph_takes_the_serial_kernels_and_gets_the_same_rows():
+    """A single graph (a control tick's frame) runs the serial compile: same tables, same order."""
+    graph_numba = pytest.importorskip("tacgnn.perception.graph_numba")
+    if not graph_numba.available():
+        pytest.skip("numba is not installed")
+    serial, parallel = graph_numba._compile(parallel=False), graph_numba._compile(parallel=True)
+    assert serial is not parallel and graph_numba._kernels_for(1) is serial and graph_numba._kernels_for(2) is parallel
+    g = torch.Generator().manual_seed(50)
+    for n in (0, 1, 2, 9, 64):
+        pos = torch.randint(0, 4, (n, 3), generator=g).float()  # a grid: many tied distances and keys
+        counts = torch.tensor([n])
+        xt, ptr = graph_numba._coordinates(pos), graph_numba._ptr(counts)
+        for k, loop in ((1, False), (6, False), (6, True)):
+            K = max(1, min(k, n if loop else n - 1))
+            table = graph_numba.knn_table(pos, counts, k, loop)
+            assert torch.equal(table, torch.from_numpy(parallel[0](xt, ptr, K, loop))), (n, k, loop)
+        keys = torch.cat([pos.t(), torch.randint(1, 3, (1, n), generator=g).float()])
+        expected = parallel[2](graph_numba._coordinates(keys.t()).copy(), ptr)
+        assert torch.equal(graph_numba.lexicographic_order(keys, counts), torch.from_numpy(expected)), n

@@ -5,8 +5,11 @@ torch, each kNN or FPS step is a batched op over all graphs, but FPS needs one s
 sample and every op pays a fixed dispatch cost; most of a forward went into these small
 ops. Here one compiled pass per layer walks the graphs one by one (``prange``: both cores)
 and writes exactly what the network consumes: a ``(K, V)`` table of neighbour rows and the
-FPS order as flat rows. Distances are float32 ``(dx^2 + dy^2) + dz^2``, as in the exact
-torch path (:mod:`tacgnn.perception.graph_ops`); ties go to the lower index.
+FPS order as flat rows. One graph (a control tick's single frame) goes to a serial compile
+of the same kernels: a parallel region has nothing to share out there, and entering it
+costs thread wake-ups that on 2 loaded cores took far longer than the work. Both give the
+same rows. Distances are float32 ``(dx^2 + dy^2) + dz^2``, as in the exact torch path
+(:mod:`tacgnn.perception.graph_ops`); ties go to the lower index.
 
 The torch versions in :mod:`graph_ops` stay the reference (and the fallback without numba);
 the tests check both against brute force.
@@ -18,31 +21,41 @@ import numpy as np
 import torch
 from torch import Tensor
 
-_kernels: tuple | bool | None = None  # None: not compiled yet; False: numba is missing
+_kernels: dict[bool, tuple] = {}  # parallel flavour -> (knn_table, fps_order, lex_order)
+_numba_missing = False
 
 
 def available() -> bool:
     return _compile() is not None
 
 
-def _compile():
-    """Compile the kernels once per process (cached on disk by numba); None without numba."""
-    global _kernels
-    if _kernels is not None:
-        return _kernels or None
-    try:
-        import numba
-    except ImportError:
-        _kernels = False
-        return None
+def _compile(parallel: bool = True):
+    """The kernels, compiled once per process and flavour (cached on disk by numba); None without numba.
 
+    ``parallel``: kNN and the sort walk the graphs with ``prange``; else the same source
+    compiled serially (FPS is serial in both).
+    """
+    global _numba_missing
+    if parallel not in _kernels and not _numba_missing:
+        try:
+            import numba
+        except ImportError:
+            _numba_missing = True
+            return None
+        # a closure over the loop: numba's disk cache keys a function by its code and closure
+        # values, not by its compile flags, so the two flavours must differ in a value
+        _kernels[parallel] = _build(numba, numba.prange if parallel else range, parallel)
+    return _kernels.get(parallel)
+
+
+def _build(numba, graphs_range, parallel: bool) -> tuple:
     # kNN: graphs in parallel (2x faster on 2 cores); FPS stays serial (measured 15x
     # slower with prange: its loop is short and the per-graph arrays were not hoisted)
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @numba.njit(cache=True, nogil=True, parallel=parallel)
     def knn_table(xt, ptr, K, loop):  # pragma: no cover (compiled)
         V = xt.shape[1]
         out = np.empty((K, V), np.int64)
-        for g in numba.prange(ptr.shape[0] - 1):
+        for g in graphs_range(ptr.shape[0] - 1):
             lo, hi = ptr[g], ptr[g + 1]
             n = hi - lo
             xs, ys, zs = xt[0, lo:hi], xt[1, lo:hi], xt[2, lo:hi]
@@ -125,11 +138,11 @@ def _compile():
 
     # binary insertion sort per graph: n log n comparisons (each reads up to m keys), and
     # shifts of a few hundred ints at most; no allocation per graph (graphs hold tens of nodes)
-    @numba.njit(cache=True, nogil=True, parallel=True)
+    @numba.njit(cache=True, nogil=True, parallel=parallel)
     def lex_order(keys, ptr):  # pragma: no cover (compiled)
         """Per graph, its rows sorted by keys[0], then keys[1], ... (stable), as flat rows."""
         out = np.empty(keys.shape[1], np.int64)
-        for g in numba.prange(ptr.shape[0] - 1):
+        for g in graphs_range(ptr.shape[0] - 1):
             lo, hi = ptr[g], ptr[g + 1]
             for i in range(lo, hi):
                 cur = i
@@ -145,8 +158,7 @@ def _compile():
                 out[left] = cur
         return out
 
-    _kernels = (knn_table, fps_order, lex_order)
-    return _kernels
+    return knn_table, fps_order, lex_order
 
 
 def _follow_torch_threads() -> None:
@@ -161,6 +173,14 @@ def _follow_torch_threads() -> None:
     # NUMBA_NUM_THREADS is set at import by numba.config from the environment, so no checker can see it
     max_threads = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
     numba.set_num_threads(max(1, min(torch.get_num_threads(), max_threads)))
+
+
+def _kernels_for(num_graphs: int) -> tuple:
+    """Serial kernels for one graph (nothing to share out), the parallel ones for a batch."""
+    if num_graphs <= 1:
+        return _compile(parallel=False)
+    _follow_torch_threads()
+    return _compile()
 
 
 def _coordinates(x: Tensor) -> np.ndarray:
@@ -180,8 +200,7 @@ def knn_table(x: Tensor, counts: Tensor, k: int, loop: bool = False) -> Tensor:
     ``models.graphs.TorchGraphs``). ``x (V, 3)`` float32 on CPU, graphs as consecutive rows of
     ``counts (B,)`` nodes.
     """
-    knn, _, _ = _compile()
-    _follow_torch_threads()
+    knn, _, _ = _kernels_for(len(counts))
     n_max = int(counts.max()) if len(counts) else 0
     K = max(1, min(k, n_max if loop else n_max - 1))
     table = knn(_coordinates(x), _ptr(counts), K, loop)
@@ -193,7 +212,7 @@ def fps_rows(x: Tensor, counts: Tensor, num_samples: Tensor, centroid_start: boo
 
     Start: the node farthest from the centroid (``centroid_start``) or the first node.
     """
-    _, fps, _ = _compile()
+    _, fps, _ = _compile(parallel=len(counts) > 1)  # FPS is serial in both flavours
     rows = fps(_coordinates(x), _ptr(counts),
                num_samples.numpy().astype(np.int64), centroid_start)
     return torch.from_numpy(rows)
@@ -204,6 +223,5 @@ def lexicographic_order(keys: Tensor, counts: Tensor) -> Tensor:
 
     ``keys (m, V)`` float32 on CPU, graphs as consecutive rows of ``counts (B,)`` nodes.
     """
-    *_, lex = _compile()
-    _follow_torch_threads()
+    *_, lex = _kernels_for(len(counts))
     return torch.from_numpy(lex(np.ascontiguousarray(keys.detach().numpy(), np.float32), _ptr(counts)))

@@ -34,7 +34,6 @@ from tacgnn.envs.baoding import ordered_balls
 from tacgnn.hand.allegro import JOINT_NAMES
 from tacgnn.learning.policy import SHIPPED_POLICY
 from tacgnn.real.kinematics import TaxelKinematics
-from tacgnn.real.tick_networks import TickPerception, TickPolicy
 
 NUM_JOINTS = len(JOINT_NAMES)
 BLIND_MODES = ("perceived", "no_perception")
@@ -53,9 +52,6 @@ class BlindControllerConfig:
     max_target_rate: float = 0.0
     """If > 0, a target moves at most this fast (rad/s) from the last commanded target (the first
     tick of an episode: from the measured angles); 0: no limit."""
-    tick_networks: bool = True
-    """Run the networks through `tacgnn.real.tick_networks` (single-frame calls, serial graph
-    kernels: bit-identical outputs in a fraction of the time); False: as loaded."""
 
     def __post_init__(self) -> None:
         check(self.torch_threads >= 1, "torch_threads", "must be >= 1")
@@ -104,9 +100,6 @@ class BlindController:
         if mode == "perceived" and perception is None:
             raise ValueError(f"policy {cfg.policy} is a 'perceived' policy but holds no perception model")
         self.perception: Callable[..., np.ndarray] | None = perception
-        if cfg.tick_networks:
-            self.policy = TickPolicy.wrap(self.policy, cfg.policy)
-            self.perception = None if perception is None else TickPerception.wrap(perception)
         hand = self.env_config.hand
         self.kinematics = TaxelKinematics(hand, self.env_config.skin, self.env_config.sim)
         self.joint_low, self.joint_high = np.asarray(hand.joint_ranges, dtype=np.float64).T
@@ -140,6 +133,7 @@ class BlindController:
         zeros for a 'no_perception' policy. Updates the tracking state."""
         if self.perception is None:
             return np.zeros(observation.BALL_VALUES)
+        torch.get_num_threads()  # this thread's torch threads set up before its first op (`act`)
         kin_q = joint_pos if skin_joint_pos is None else skin_joint_pos
         taxel_pos = self.kinematics.positions(kin_q)[None]
         previous = self.balls if self.track_balls else None
@@ -170,6 +164,11 @@ class BlindController:
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The policy's (16,) action in [-1, 1] for one observation; becomes the last action."""
+        # The ROS loop ticks on the threads that receive messages. Torch sets a thread's
+        # OpenMP threads lazily, on its first parallel op; a first matmul before that ran on
+        # more threads and rounded differently (a few ulps, carried on in the controller's
+        # state). Asking for the thread count does the set-up.
+        torch.get_num_threads()
         action = np.asarray(self.policy(obs[None]), np.float64)[0]
         if not np.isfinite(action).all():
             raise FloatingPointError("the policy returned non-finite actions")

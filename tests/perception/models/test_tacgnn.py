@@ -79,6 +79,23 @@ def test_taxel_order_does_not_change_the_output_on_real_frames(real_frames, kw, 
             torch.testing.assert_close(model(readings[:, perm], positions[:, perm]), y, atol=1e-5, rtol=1e-5)
 
 
+@pytest.mark.parametrize("kw", [dict(use_force=True, force_feature="log", pool="jk"),
+                                dict(downsample_layers=(0, 1), k=(6, 4, 3), use_force=True, fps_start="first")])
+def test_one_frame_on_the_serial_kernels_gives_the_parallel_kernels_output(real_frames, kw, monkeypatch):
+    """A frame on its own (a control tick) runs serially compiled graph kernels: the same output, bit for bit."""
+    if not graph_numba.available():
+        pytest.skip("numba is not installed")
+    torch.manual_seed(0)
+    model = make(**kw).eval()
+    readings, positions = real_frames
+    with torch.no_grad():
+        serial = [model(readings[i:i + 1], positions[i:i + 1]) for i in range(0, 64, 4)]
+        monkeypatch.setattr(graph_numba, "_kernels_for", lambda num_graphs: graph_numba._compile(parallel=True))
+        parallel = [model(readings[i:i + 1], positions[i:i + 1]) for i in range(0, 64, 4)]
+    for i, (a, b) in enumerate(zip(serial, parallel)):
+        assert torch.equal(a, b), f"frame {4 * i}"
+
+
 def test_taxel_order_does_not_change_the_output_on_the_rest_grid(skin_rest, blobs):
     """The skin's grids at rest, untouched by the rounding of a hand pose: exact ties everywhere."""
     torch.manual_seed(0)
