@@ -8,12 +8,17 @@ Reads one sequence checkpoint and its dataset, places the balls of every test ep
 * the worst test episodes: their share of the squared error, length, how the worst ball
   sits (touched share, speed, height, which patches touch it), and whether its estimate sits
   on the other ball (an identity swap the per-frame matching could not undo);
-* the error of the frames where the ball is at rest (stuck) against moving.
+* the error of the frames where the ball is at rest (stuck) against moving;
+* the test RMSE (overall, touched, untouched) without the worst 1, 2, 4 episodes, and how many
+  training frames lie near the worst episode's last ball pair (within 1.5 cm, either order);
+* with ``--compare RUN`` (a single-frame run on the same split), that run's error on the
+  worst episodes: whether the frame encoder or the recurrence loses the ball.
 
 Example::
 
     .venv/bin/python experiments/temporal_diagnosis.py --dataset data/baoding_seq2 \\
-        --run runs/temporal2/tacgnn32_temporal --out docs/temporal_diagnosis.json
+        --run runs/temporal2/tacgnn32_temporal --compare runs/temporal2/tacgnn32_single \\
+        --out docs/temporal_diagnosis.json
 """
 
 from __future__ import annotations
@@ -72,6 +77,7 @@ def main() -> None:
     parser.add_argument("--dataset", required=True)
     parser.add_argument("--run", required=True, help="run folder holding checkpoint.pt")
     parser.add_argument("--worst", type=int, default=6, help="worst test episodes to describe")
+    parser.add_argument("--compare", default="", help="another run on the same split (e.g. the single-frame one)")
     parser.add_argument("--cache", default="", help="predictions file (.pt): read if present, else written")
     parser.add_argument("--out", default="docs/temporal_diagnosis.json")
     args = parser.parse_args()
@@ -116,13 +122,36 @@ def main() -> None:
     # the worst episodes
     ep_ids, inverse = torch.unique_consecutive(test.episode, return_inverse=True)
     ep_se = torch.zeros(len(ep_ids)).index_add_(0, inverse[keep], se[keep].sum(1))
+    order = ep_se.argsort(descending=True)
+    report["without_worst_episodes"] = []
+    for k in (1, 2, 4):
+        rest_rows = keep & ~torch.isin(inverse, order[:k])
+        report["without_worst_episodes"].append({
+            "dropped": k, "rmse_cm": float(se[rest_rows].mean().sqrt()),
+            "touched_rmse_cm": float(se[rest_rows][touch[rest_rows]].mean().sqrt()),
+            "untouched_rmse_cm": float(se[rest_rows][~touch[rest_rows]].mean().sqrt())})
+    end = test.frames.targets[((inverse == order[0]) & keep).nonzero().max()].view(2, 3)
+    pair = train.frames.targets.view(-1, 2, 3)
+    near = torch.minimum(torch.maximum((pair[:, 0] - end[0]).norm(dim=-1), (pair[:, 1] - end[1]).norm(dim=-1)),
+                         torch.maximum((pair[:, 1] - end[0]).norm(dim=-1), (pair[:, 0] - end[1]).norm(dim=-1)))
+    report["worst_episode_last_pair_cm"] = end.tolist()
+    report["train_frames_near_it"] = {"within_cm": 1.5, "frames": int((near < 1.5).sum()),
+                                      "episodes": len(torch.unique(train.episode[near < 1.5]))}
+    other_se = None
+    if args.compare:
+        other, other_cfg, _ = load_sequence_model(Path(args.compare) / "checkpoint.pt")
+        if (other_cfg.seed, other_cfg.train_fraction, other_cfg.max_frames) != (cfg.seed, cfg.train_fraction,
+                                                                                 cfg.max_frames):
+            raise SystemExit(f"--compare {args.compare}: another split than {args.run}")
+        other_se = matched_ball_errors(sequence_predictions(other, other_cfg, test), test, other_cfg.match_balls)[0]
+        report["compare"] = args.compare
     total = float(ep_se.sum())
     layout = from_dict(SkinLayout, read_manifest(args.dataset)["metadata"]["skin"])
     names = [p.name for p in layout.patches]
     patch = torch.from_numpy(layout.patch_index())
     t = test.frames.targets
     worst = []
-    for e in ep_se.argsort(descending=True)[:args.worst].tolist():
+    for e in order[:args.worst].tolist():
         rows = ((inverse == e) & keep).nonzero().squeeze(1)
         b = int(se[rows].sum(0).argmax())  # the ball with most of the episode's error
         err = se[rows, b].mul(3).sqrt()  # distance (cm)
@@ -150,6 +179,8 @@ def main() -> None:
             "estimate_to_other_ball_median_cm": float(to_other.median()),
             "touching_patches_share": {n: round(v, 3) for n, v in patches.items() if v > 0.05},
             "active_taxels_mean": float(active.sum(1).float().mean()),
+            **({} if other_se is None else {"compare_ball_rmse_cm": float(other_se[rows, b].mean().sqrt()),
+                                            "compare_other_ball_rmse_cm": float(other_se[rows, 1 - b].mean().sqrt())}),
         })
     report["worst_episodes"] = worst
     report["provenance"] = provenance({"perception": ckpt}, cfg.seed, {"dataset": args.dataset})
