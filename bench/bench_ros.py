@@ -11,6 +11,7 @@ the same process, no ROS and no clock: what the ROS loop must reproduce.
     .venv/bin/python bench/bench_ros.py --episodes 64 --reference
     .venv/bin/python bench/bench_ros.py --minutes 10 --out results/ros_10min.json
     .venv/bin/python bench/bench_ros.py --episodes 64 --hand-args="--latency-ms 20 --drop-tactile 0.05"
+    .venv/bin/python bench/bench_ros.py --minutes 1 --stage-timers   # where the controller's tick spends its time
 
 Needs ROS 1 (`make test-ros` installs Debian's ROS 1 and links rospy into the venv).
 """
@@ -119,6 +120,8 @@ def main() -> None:
     parser.add_argument("--hand-args", default="", help="extra sim-hand arguments, e.g. '--latency-ms 20'")
     parser.add_argument("--run-args", default="", help="extra real-hand run arguments")
     parser.add_argument("--reference", action="store_true", help="first run the same episodes without ROS")
+    parser.add_argument("--stage-timers", action="store_true",
+                        help="time each stage of the controller's tick (bench/stage_timers/sitecustomize.py)")
     parser.add_argument("--out", default="", help="write all figures as JSON here")
     args = parser.parse_args()
     if shutil.which("roscore") is None:
@@ -147,6 +150,11 @@ def main() -> None:
                 "--episodes", str(episodes), "--summary", str(work / "hand.json"), *shlex.split(args.hand_args)]
     if args.minutes:
         hand_cmd += ["--duration", str(60 * args.minutes)]
+    run_env = dict(env)
+    if args.stage_timers:
+        timers = str(Path(__file__).resolve().parent / "stage_timers")
+        run_env["PYTHONPATH"] = os.pathsep.join(p for p in (timers, env.get("PYTHONPATH", "")) if p)
+        run_env["TACGNN_STAGE_TIMERS"] = str(work / "stages.json")
     run_cmd = [*tacgnn, "run", "--policy", policy, "--calibration", str(calibration), "--stats",
                str(work / "stats.json"), *shlex.split(args.run_args)]
     started = time.monotonic()
@@ -154,7 +162,7 @@ def main() -> None:
         with open(work / "hand.log", "w") as hand_log, open(work / "run.log", "w") as run_log:
             hand = subprocess.Popen(hand_cmd, env=env, stdout=hand_log, stderr=subprocess.STDOUT)
             time.sleep(0.5)
-            ctrl = subprocess.Popen(run_cmd, env=env, stdout=run_log, stderr=subprocess.STDOUT)
+            ctrl = subprocess.Popen(run_cmd, env=run_env, stdout=run_log, stderr=subprocess.STDOUT)
             limit = 600 + (90 * args.minutes if args.minutes else 3 * args.episodes)
             ctrl.wait(limit)
             hand.wait(60)
@@ -173,6 +181,10 @@ def main() -> None:
     summary.pop("results")
     result.update(hand=summary, controller=stats, seconds=round(time.monotonic() - started, 1),
                   load_average_end=os.getloadavg(), busy_processes_end=busy_processes())
+    if args.stage_timers:
+        result["stages"] = stages = json.loads((work / "stages.json").read_text())
+        print("  tick stages (ms, p50 / p99): " + "; ".join(
+            f"{name} {ms['p50']} / {ms['p99']}" for name, ms in stages["stages_ms"].items()))
     lat = stats["tick_to_command_ms"]
     print(f"through ROS: {summary['episodes']} episodes, success {summary['success_rate']:.3f}, "
           f"{summary['steps']} steps in {summary['seconds']:.0f} s")
