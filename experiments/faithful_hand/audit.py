@@ -20,7 +20,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import mujoco
@@ -29,6 +29,7 @@ import numpy as np
 from tacgnn.config import override, parse_overrides
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.learning.policy import load_perception, load_policy
+from tacgnn.provenance import provenance
 from tacgnn.sim.tactile import TactileModel
 
 
@@ -46,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     stats = audit(policy, cfg, args.episodes, perception)
     stats["spawn_overlaps"] = count_spawn_overlaps(cfg, args.resets)
     stats["policy"] = args.policy
+    stats["provenance"] = provenance({"policy": args.policy}, 123, {"env": asdict(cfg), "episodes": args.episodes,
+                                                                     "resets": args.resets})
     text = json.dumps(stats, indent=1)
     print(text)
     if args.out:

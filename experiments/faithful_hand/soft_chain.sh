@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# The blind TacGNN chain from a gentler teacher, as experiments/baoding_pipeline.sh builds it, with the
+# squeeze charged on the peak force over substeps (reward.squeeze=-0.2 squeeze_free_force=3 squeeze_peak=true).
+#
+#   experiments/faithful_hand/soft_chain.sh [ITERATIONS]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+ITERS=${1:-400}
+T=.venv/bin/tacgnn
+source experiments/lib.sh  # resume, last, offline_perception
+REWARD="reward.squeeze=-0.2 reward.squeeze_free_force=3.0 reward.squeeze_peak=true"
+TEACHER=runs/gt_hold_soft_peak_s0/model_000300.pt  # trained as docs/results.md section 1.1 says
+DATA=data/baoding_teacher_soft
+[ -f $DATA/manifest.json ] || $T make-dataset baoding --policy $TEACHER --out $DATA --samples 50000 --settle-steps 0 --seed 0
+PERC=runs/perc/tacgnn_soft_s0
+offline_perception $PERC tacgnn 0 $DATA
+RUN=runs/blind_tacgnn_soft_s0
+if [ ! -f "$(last $RUN $ITERS)" ]; then
+  $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold $REWARD --ppo max_iterations=$ITERS \
+    save_interval=50 init_from=$TEACHER init_noise_std=0.2 learning_rate=0.0001 schedule=fixed \
+    privileged_critic=true seed=0 \
+    --perception model.name=tacgnn pretrained=$PERC/checkpoint.pt epochs=2 update_every_steps=400
+fi
+out=results/table3/$(basename $RUN)_$(basename "$(last $RUN $ITERS)" .pt).json
+[ -f $out ] || $T evaluate "$(last $RUN $ITERS)" --task all --episodes 512 --envs 128 --out $out
