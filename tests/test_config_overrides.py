@@ -133,7 +133,8 @@ def _run(tree: str, cfg, tmp_dir) -> None:
     elif tree == "grasp":
         from tacgnn.envs.grasp import PowerGrasp
 
-        PowerGrasp(replace(cfg, num_envs=1)).run(seed=0)
+        steps = {key: min(getattr(cfg, key), 30) for key in ("settle_steps", "close_steps", "hold_steps")}
+        PowerGrasp(replace(cfg, num_envs=1, **steps)).run(seed=0)  # a drawn 15e9 settle steps takes days
     elif tree == "perception":
         from tacgnn.hand.skin_layout import default_skin
         from tacgnn.learning.online_perception import OnlinePerception
@@ -218,6 +219,8 @@ def _names_missing_file(cfg, message: str) -> bool:
     (["num_envs=100000"], "num_envs"),
     (["torch_threads=0"], "torch_threads"),
     (["torch_threads=100000"], "torch_threads"),
+    (["clip_param=1.7e64"], "clip_param"),  # accepted once, then overflowed in the first update
+    (["learning_rate=10"], "learning_rate"),
 ])
 def test_ppo_overrides(items, key):
     if key is None:
@@ -245,3 +248,8 @@ def test_ppo_overrides(items, key):
 def test_known_bad_values_are_refused_at_load_time(tree, items, key):
     with pytest.raises(ConfigError, match=rf"['.]{re.escape(key)}'"):
         override(TREES[tree], parse_overrides(items))
+
+
+def test_a_rate_too_fast_for_the_pairing_window_names_the_rate():
+    with pytest.raises(ConfigError, match=r"'ros.pair_window_s'.*1 / rate_hz"):
+        override(TREES["ros"], parse_overrides(["rate_hz=500"]))

@@ -102,11 +102,12 @@ class PPOConfig:
         check(self.num_envs * self.num_steps_per_env >= self.num_mini_batches, "num_mini_batches",
               f"{self.num_mini_batches} mini-batches, more than the samples per iteration "
               f"(num_envs x num_steps_per_env = {self.num_envs * self.num_steps_per_env})")
-        check(self.learning_rate > 0, "learning_rate", "must be positive")
+        check(0 < self.learning_rate <= 1, "learning_rate", f"needs 0 < learning_rate <= 1, got {self.learning_rate}")
         check(self.desired_kl > 0, "desired_kl", "must be positive")
         check(0 < self.gamma <= 1, "gamma", f"needs 0 < gamma <= 1, got {self.gamma}")
         check(0 <= self.lam <= 1, "lam", f"needs 0 <= lam <= 1, got {self.lam}")
-        check(self.clip_param > 0, "clip_param", "must be positive")
+        check(0 < self.clip_param <= 1, "clip_param",  # the ratio is clamped to [1 - clip, 1 + clip]
+              f"needs 0 < clip_param <= 1, got {self.clip_param}")
         check(self.init_noise_std > 0, "init_noise_std", "must be positive")
         check(self.max_grad_norm > 0, "max_grad_norm", "must be positive")
         check(self.reward_scale > 0, "reward_scale", "must be positive")

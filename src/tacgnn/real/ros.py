@@ -111,7 +111,7 @@ class RosConfig:
               f"must be joint_states or timer, got {self.clock!r}")
         check(self.startup_timeout_s > 0, "ros.startup_timeout_s", "must be positive")
         check(0 <= self.pair_window_s < 1 / self.rate_hz, "ros.pair_window_s",
-              f"must be in [0, one period = {1 / self.rate_hz:g} s), got {self.pair_window_s}")
+              f"must be in [0, one period = 1 / rate_hz = {1 / self.rate_hz:g} s), got {self.pair_window_s}")
 
     @property
     def period(self) -> float:
