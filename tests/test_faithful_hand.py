@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from tacgnn.config import ConfigError
-from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig, RewardConfig
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import TYPICAL_CONTACT_FORCE, Patch, default_skin
 from tacgnn.sim.scene import SimConfig
@@ -194,6 +194,19 @@ def test_squeezing_the_balls_costs_reward_above_the_free_force():
     env.reset(seed=0)
     *_, info = env.step(np.tile(env.ctrl_to_action(env.initial_ctrl), (2, 1)))
     assert (info["reward_terms"]["squeeze"] == 0).all(), "holding the balls gently is free"
+
+
+def test_the_tail_hinge_charges_only_the_force_above_its_own_threshold():
+    reward = RewardConfig(squeeze_tail=-1.0, squeeze_tail_force=8.0)
+    env = BaodingEnv(BaodingConfig(num_envs=2, reward=reward))
+    for _ in range(10):  # close every finger as hard as the motors allow
+        *_, info = env.step(np.ones((2, 16)))
+    forces = env.ball_contact_forces()
+    assert forces.max() > 8.0, "the fist presses a ball harder than the hinge's force"
+    assert np.allclose(info["reward_terms"]["squeeze_tail"], -np.maximum(forces - 8.0, 0).sum(1))
+    assert np.allclose(info["reward_terms"]["squeeze"], -0.05 * np.maximum(forces - 5.0, 0).sum(1))
+    with pytest.raises(ConfigError, match="reward.squeeze_tail_force"):
+        RewardConfig(squeeze_free_force=5.0, squeeze_tail_force=4.0)
 
 
 def test_a_typical_contact_activates_4_to_5_taxels_on_every_patch():

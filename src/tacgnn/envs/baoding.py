@@ -85,6 +85,12 @@ class RewardConfig:
     substeps instead of its force at the step's end, so that a short impact between control
     steps (a ball landing on a fingertip) is seen; the physics is then stepped one substep per
     call (same trajectory, a little slower)."""
+    squeeze_tail: float = 0.0
+    """Per newton of each ball contact's normal force above `squeeze_tail_force`, on top of
+    `squeeze` (not in the paper): a steep second hinge that charges the grip's tail (the hand's
+    target is a 99th percentile of 10 N) while the ordinary grip pays only `squeeze`; 0: off."""
+    squeeze_tail_force: float = 8.0
+    """Contact force (N) where `squeeze_tail` starts."""
     alive: float = 0.0
     """Per step that ends with both balls in the hand (not in the paper; for the continuous
     task, where staying in the hand is worth more than one fast half turn)."""
@@ -94,6 +100,9 @@ class RewardConfig:
 
     def __post_init__(self) -> None:
         check(self.alive >= 0, "reward.alive", f"must be >= 0, got {self.alive}")
+        check(self.squeeze_tail <= 0, "reward.squeeze_tail", f"is a penalty: must be <= 0, got {self.squeeze_tail}")
+        check(self.squeeze_tail_force >= self.squeeze_free_force, "reward.squeeze_tail_force",
+              f"must be >= reward.squeeze_free_force ({self.squeeze_free_force} N), got {self.squeeze_tail_force}")
         check(self.rotation_cap_deg >= 0, "reward.rotation_cap_deg",
               f"must be >= 0 (0: no cap), got {self.rotation_cap_deg}")
 
@@ -635,6 +644,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             "fall": w.fall * fall,
             "timeout": (0.0 if self.config.task == "continuous" else w.timeout) * timeout,  # 10 s is the goal there
             "squeeze": w.squeeze * np.maximum(ball_forces - w.squeeze_free_force, 0.0).sum(axis=1),
+            "squeeze_tail": w.squeeze_tail * np.maximum(ball_forces - w.squeeze_tail_force, 0.0).sum(axis=1),
             "alive": w.alive * ~fall,
         }
 
