@@ -26,7 +26,8 @@ ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
 """The blind policy the demo and the real-hand controller run: TacGNN perception in the loop."""
 SHIPPED_TEACHER = ASSETS / "baoding_gt_policy.pt"
-"""The ground-truth teacher it was fine-tuned from (true ball positions)."""
+"""The ground-truth policy shipped beside it (true ball positions): its teacher fine-tuned 100
+iterations more with a steep penalty on the grip's force tail (docs/results.md, section 1.1)."""
 
 
 def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], BaodingConfig]:
