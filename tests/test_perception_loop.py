@@ -1,7 +1,10 @@
 """Perception in the RL loop: the policy sees predicted ball positions; the model learns online."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+import torch
 
 from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingConfig
@@ -219,3 +222,41 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
           tmp_path / "torque")
     with pytest.raises(ValueError, match="finger_torque"):
         evaluation.evaluate(tmp_path / "torque" / "model_000001.pt", episodes=1, num_envs=1, perception_from=perc)
+
+
+def test_anchor_frames_keep_the_in_loop_model_fitting_another_distribution(tmp_path):
+    """With `anchor_dataset` every update also fits frames of another source (here: the
+    scripted env's own resets), so the model places them better than one trained on the buffer alone."""
+    from tacgnn.config import to_dict
+    from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
+    from tacgnn.envs.baoding import BaodingEnv
+    from tacgnn.envs.scripted import FingerWave
+    from tacgnn.learning.online_perception import OnlinePerception
+    from tacgnn.perception.data import load_tactile
+    from tacgnn.perception.objectives import Objective
+
+    generate(BaodingDataConfig(samples=512, shard_size=512, num_envs=16, seed=5, settle_steps=0), tmp_path / "anchor")
+    anchor = load_tactile(tmp_path / "anchor", "baoding")
+    env = BaodingEnv(BaodingConfig(num_envs=32, obs_mode="perceived"))
+    base = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), epochs=8, buffer_size=1024)
+    mixed = replace(base, anchor_dataset=str(tmp_path / "anchor"), anchor_share=0.5)
+    plain_model, mixed_model = (OnlinePerception(c, to_dict(env.config.skin)) for c in (base, mixed))
+    env.perception = plain_model
+    env.reset(seed=0)
+    wave = FingerWave(env.last_action[0], 32, seed=0)
+    for step in range(32):
+        *_, info = env.step(wave())
+        if step >= 8:  # the wave's late frames: a narrower distribution than the anchor's
+            plain_model.record(info)
+            mixed_model.record(info)
+    for model in (plain_model, mixed_model):
+        model.update()
+
+    def anchor_rmse(model):
+        with torch.no_grad():
+            pred = model.model(anchor.readings.float(), anchor.positions.float())
+        return Objective("baoding", True).metrics(pred, anchor.targets.float())["position_rmse_cm"]
+
+    assert anchor_rmse(mixed_model) < 0.8 * anchor_rmse(plain_model)
+    with pytest.raises(ConfigError, match="perception.anchor_dataset"):
+        replace(mixed, temporal=True)

@@ -25,6 +25,7 @@ from tacgnn.config import ConfigError, check, from_dict, to_dict
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.checkpoint import make_model
+from tacgnn.perception.data import load_tactile
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.rest_positions import rest_positions_cm
@@ -66,6 +67,12 @@ class OnlinePerceptionConfig:
     """temporal: width of the per-frame feature."""
     temporal_hidden: int = 128
     """temporal: width of the GRU state."""
+    anchor_dataset: str = ""
+    """A Baoding dataset (e.g. the teacher's frames, `tacgnn make-dataset baoding`) mixed into
+    every update, so that the model keeps fitting frames other than the blind policy's own,
+    which alone it fits at the cost of others (docs/results.md, section 6); '' = the buffer alone."""
+    anchor_share: float = 0.5
+    """With `anchor_dataset`: the share of each update's samples drawn from it."""
 
     def __post_init__(self) -> None:
         check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
@@ -89,6 +96,10 @@ class OnlinePerceptionConfig:
         check(1 <= self.threads <= 1024, "perception.threads", f"must be in [1, 1024], got {self.threads}")
         check(self.lr > 0, "perception.lr", f"must be positive, got {self.lr}")
         check(self.weight_decay >= 0, "perception.weight_decay", f"must be >= 0, got {self.weight_decay}")
+        check(0 < self.anchor_share < 1, "perception.anchor_share", f"must be in (0, 1), got {self.anchor_share}")
+        if self.anchor_dataset:
+            check(not self.temporal and self.model.joint_inputs == 0, "perception.anchor_dataset",
+                  "mixes single frames of skin alone: not with temporal or joint_inputs")
         check(self.buffer_size <= 1_000_000, "perception.buffer_size",  # 16 bytes per taxel and frame: 10 GB
               f"must be <= 1,000,000, got {self.buffer_size}")
 
@@ -131,6 +142,11 @@ class OnlinePerception:
         self.joints = torch.zeros(n, self.joint_inputs)  # (n, 0) for a skin-only model
         self.size, self.head, self.steps_seen, self.updates = 0, 0, 0, 0
         self._gen = torch.Generator().manual_seed(seed)
+        self.anchor = load_tactile(cfg.anchor_dataset, "baoding") if cfg.anchor_dataset else None
+        if self.anchor is not None and self.anchor.readings.shape[1] != num_taxels:
+            raise ConfigError(f"perception.anchor_dataset {cfg.anchor_dataset}: frames of "
+                              f"{self.anchor.readings.shape[1]} taxels, this env's skin has {num_taxels}")
+        self._anchor_batch = round(cfg.batch_size * cfg.anchor_share / (1 - cfg.anchor_share))
 
     @torch.inference_mode()
     def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
@@ -147,6 +163,17 @@ class OnlinePerception:
     def _inputs(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
         inputs = (self.readings[idx], self.positions[idx])
         return (*inputs, self.joints[idx]) if self.joint_inputs else inputs
+
+    def _with_anchor(self, inputs: tuple[torch.Tensor, ...], labels: torch.Tensor
+                     ) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
+        """A batch of the buffer with `anchor_share` of anchor frames added (unchanged without)."""
+        if self.anchor is None:
+            return inputs, labels
+        a = torch.randint(len(self.anchor), (self._anchor_batch,), generator=self._gen)
+        readings, positions = inputs
+        return ((torch.cat([readings, self.anchor.readings[a].float()]),
+                 torch.cat([positions, self.anchor.positions[a].float()])),
+                torch.cat([labels, self.anchor.targets[a].float()]))
 
     def record(self, info: dict) -> None:
         """Keep this step's frames of envs whose episode goes on (a fall's last frame is noise)."""
@@ -176,7 +203,8 @@ class OnlinePerception:
             order = torch.randperm(n, generator=self._gen)
             for i in range(0, n, self.cfg.batch_size):
                 idx = order[i:i + self.cfg.batch_size]
-                loss = self.objective.loss(self.model(*self._inputs(idx)), self.labels[idx])
+                inputs, labels = self._with_anchor(self._inputs(idx), self.labels[idx])
+                loss = self.objective.loss(self.model(*inputs), labels)
                 backward_checked(self.optim, loss, f"in perception update {self.updates + 1} (in-loop training)")
                 self.optim.step()
         self.updates += 1

@@ -71,7 +71,7 @@ def load_perception(path: str | Path) -> OnlinePerception | None:
     if "perception" not in data:
         return None
     state = data["perception"]
-    cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": ""})
+    cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": "", "anchor_dataset": ""})  # acting
     cfg = replace(cfg, buffer_size=max(cfg.batch_size, cfg.window if cfg.temporal else 1))  # no frames to keep
     perception = make_online_perception(cfg, data["env_config"]["skin"])
     perception.model.load_state_dict(state["model"])
