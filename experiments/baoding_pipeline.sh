@@ -23,18 +23,13 @@ MODEL=${1:?usage: experiments/baoding_pipeline.sh MODEL [SEED] [ITERATIONS]}
 SEED=${2:-0}
 ITERS=${3:-1000}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last, offline_perception
+source experiments/lib.sh  # resume, last, train_gt, offline_perception
 
 GT_SIMPLE=runs/gt_s0
 GT=runs/gt_hold_s0
-if [ ! -f "$(last $GT_SIMPLE 250)" ]; then
-  $T train-policy --run-dir $GT_SIMPLE $(resume $GT_SIMPLE) --env tactile=false \
-    --ppo max_iterations=250 save_interval=50 seed=0
-fi
-if [ ! -f "$(last $GT 300)" ]; then
-  $T train-policy --run-dir $GT $(resume $GT) --env tactile=false task=hold --ppo max_iterations=300 \
-    save_interval=50 init_from="$(last $GT_SIMPLE 250)" init_noise_std=0.3 learning_rate=0.0003 schedule=fixed seed=0
-fi
+train_gt $GT_SIMPLE 250 "" "" save_interval=50
+train_gt $GT 300 "$(last $GT_SIMPLE 250)" task=hold \
+  "save_interval=50 init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
 DATA=data/baoding_teacher
 $T make-dataset baoding --policy "$(last $GT 300)" --out $DATA --samples 50000 --settle-steps 0 --seed 0
 PERC=runs/perc/${MODEL}_s$SEED

@@ -10,22 +10,19 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last
+source experiments/lib.sh  # train_gt, last
 
-# stage RUN ITERATIONS PARENT SETTINGS PPO_SETTINGS
+# stage RUN ITERATIONS PARENT ENV_SETTINGS PPO_SETTINGS: train_gt (a checkpoint every 100
+# iterations), then 128 episodes of 10 s
 stage() {
-  local run=$1 iters=$2 parent=$3 env=$4 ppo=$5
-  if [ ! -f "$(last $run $iters)" ]; then
-    $T train-policy --run-dir $run $(resume $run) --env tactile=false $env --ppo max_iterations=$iters \
-      save_interval=100 seed=0 $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
-  fi
-  local out=results/continuous/$(basename $run)_$(basename "$(last $run $iters)" .pt).json
-  [ -f $out ] || [ -z "$env" ] || $T evaluate "$(last $run $iters)" --task continuous --episodes 128 --out $out
+  train_gt "$1" "$2" "$3" "$4" "save_interval=100 $5"
+  local out=results/continuous/$(basename $1)_$(basename "$(last $1 $2)" .pt).json
+  [ -f $out ] || $T evaluate "$(last $1 $2)" --task continuous --episodes 128 --out $out
 }
 CONT="task=continuous ball_order=canonical"
 ALIVE="$CONT reward.alive=1.0 reward.fall=-200"
 FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
-stage runs/gt_s0 250 "" "" ""
+train_gt runs/gt_s0 250 "" "" save_interval=100
 stage runs/gt_cont_canon_s0 600 runs/gt_s0/model_000250.pt "$CONT" "$FINE"
 stage runs/gt_cont_alive_s0 600 runs/gt_cont_canon_s0/model_000600.pt "$ALIVE" "$FINE"
 stage runs/gt_cont_long_s0 1500 runs/gt_cont_alive_s0/model_000600.pt "$ALIVE" "$FINE"

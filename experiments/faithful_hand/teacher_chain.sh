@@ -11,16 +11,10 @@ cd "$(dirname "$0")/../.."
 LONG=${1:-1000}
 TAIL_WEIGHT=${2:--1.0}
 TAIL_FORCE=${3:-8.0}
-T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last
+source experiments/lib.sh  # train_gt
 
-# stage RUN ITERATIONS PARENT ENV_SETTINGS PPO_SETTINGS
-stage() {
-  local run=$1 iters=$2 parent=$3 env=$4 ppo=$5
-  [ -f "$(last $run $iters)" ] && return 0
-  $T train-policy --run-dir $run $(resume $run) --env tactile=false $env --ppo max_iterations=$iters \
-    save_interval=50 seed=0 $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
-}
+# stage RUN ITERATIONS PARENT ENV_SETTINGS PPO_SETTINGS: train_gt with a checkpoint every 50 iterations
+stage() { train_gt "$1" "$2" "$3" "$4" "save_interval=50 $5"; }
 FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
 PEAK="reward.squeeze=-0.2 reward.squeeze_free_force=3.0 reward.squeeze_peak=true"
 stage runs/gt_s0 250 "" "" ""

@@ -171,9 +171,8 @@ class OnlinePerception:
             return inputs, labels
         a = torch.randint(len(self.anchor), (self._anchor_batch,), generator=self._gen)
         readings, positions = inputs
-        return ((torch.cat([readings, self.anchor.readings[a].float()]),
-                 torch.cat([positions, self.anchor.positions[a].float()])),
-                torch.cat([labels, self.anchor.targets[a].float()]))
+        return ((torch.cat([readings, self.anchor.readings[a]]), torch.cat([positions, self.anchor.positions[a]])),
+                torch.cat([labels, self.anchor.targets[a]]))
 
     def record(self, info: dict) -> None:
         """Keep this step's frames of envs whose episode goes on (a fall's last frame is noise)."""
