@@ -260,3 +260,13 @@ def test_anchor_frames_keep_the_in_loop_model_fitting_another_distribution(tmp_p
     assert anchor_rmse(mixed_model) < 0.8 * anchor_rmse(plain_model)
     with pytest.raises(ConfigError, match="perception.anchor_dataset"):
         replace(mixed, temporal=True)
+
+
+def test_a_missing_anchor_dataset_is_refused_naming_the_key(tmp_path):
+    from tacgnn.config import to_dict
+    from tacgnn.hand.skin_layout import default_skin
+    from tacgnn.learning.online_perception import OnlinePerception
+
+    cfg = OnlinePerceptionConfig(anchor_dataset=str(tmp_path / "nowhere"))
+    with pytest.raises(ConfigError, match=r"perception.anchor_dataset: .*nowhere.*no dataset manifest"):
+        OnlinePerception(cfg, to_dict(default_skin()))

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from tacgnn.config import ConfigError, check, from_dict, to_dict
+from tacgnn.datasets.store import DatasetError
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.checkpoint import make_model
@@ -142,7 +143,7 @@ class OnlinePerception:
         self.joints = torch.zeros(n, self.joint_inputs)  # (n, 0) for a skin-only model
         self.size, self.head, self.steps_seen, self.updates = 0, 0, 0, 0
         self._gen = torch.Generator().manual_seed(seed)
-        self.anchor = load_tactile(cfg.anchor_dataset, "baoding") if cfg.anchor_dataset else None
+        self.anchor = self._load_anchor(cfg.anchor_dataset) if cfg.anchor_dataset else None
         if self.anchor is not None and self.anchor.readings.shape[1] != num_taxels:
             raise ConfigError(f"perception.anchor_dataset {cfg.anchor_dataset}: frames of "
                               f"{self.anchor.readings.shape[1]} taxels, this env's skin has {num_taxels}")
@@ -163,6 +164,14 @@ class OnlinePerception:
     def _inputs(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
         inputs = (self.readings[idx], self.positions[idx])
         return (*inputs, self.joints[idx]) if self.joint_inputs else inputs
+
+    @staticmethod
+    def _load_anchor(path: str):
+        """The anchor frames, or a `ConfigError` naming the key when the dataset is missing or broken."""
+        try:
+            return load_tactile(path, "baoding")
+        except DatasetError as err:
+            raise ConfigError(f"perception.anchor_dataset: {err}") from None
 
     def _with_anchor(self, inputs: tuple[torch.Tensor, ...], labels: torch.Tensor
                      ) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
