@@ -45,6 +45,42 @@ def test_bad_torque_limit_is_refused_naming_the_key(bad):
         HandConfig(torque_limit=bad)
 
 
+def test_target_ranges_keep_the_joints_inside_them_while_actions_keep_their_mapping():
+    """A software limit on the commands: full-range actions move index_j1 only within its
+    target range, where the joint range alone lets it go much further. The model's actuators
+    clamp to the same range, so a command that bypasses the env cannot leave it either."""
+    base = BaodingConfig(num_envs=4, tactile=False)
+    ranges = list(base.hand.joint_ranges)
+    ranges[1] = (0.2, 0.6)  # index_j1, joint range (-0.196, 1.61)
+    narrow = replace(base, hand=replace(base.hand, target_ranges=tuple(ranges)))
+    reached = {}
+    for name, cfg in (("joint ranges", base), ("target ranges", narrow)):
+        env = BaodingEnv(cfg)
+        env.reset(seed=0)
+        low_high = []
+        for sign in (1.0, -1.0):  # up for 0.4 s, then down for 0.4 s
+            for _ in range(20):
+                env.step(np.full((4, 16), sign))
+            low_high.append(env.joint_pos[:, 1])
+        reached[name] = low_high
+        np.testing.assert_allclose(env.action_to_ctrl(np.ones((1, 16)))[0, :12],
+                                   np.asarray(cfg.hand.joint_target_ranges())[:12, 1])
+    assert np.all(reached["joint ranges"][0] > 1.0)  # (going down, the balls stop it before 0.2)
+    # within the target range but for what the balls push the servo off it (0.5 N m)
+    assert np.all(reached["target ranges"][0] < 0.65) and np.all(reached["target ranges"][1] > 0.15)
+    model = BaodingEnv(narrow).model
+    np.testing.assert_allclose(model.actuator_ctrlrange[:16], np.asarray(narrow.hand.joint_target_ranges()))
+    # what the policy sees is unchanged: proprioception and actions scale by the joint ranges
+    assert np.allclose(BaodingEnv(narrow).joint_low, BaodingEnv(base).joint_low)
+
+
+@pytest.mark.parametrize("bad", [((0.0, 0.1),) * 15, ((-0.6, 0.4),) + ((0.0, 0.1),) * 15,
+                                 ((0.3, 0.2),) + ((0.0, 0.1),) * 15])
+def test_target_ranges_outside_the_joint_ranges_are_refused_naming_the_key(bad):
+    with pytest.raises(ConfigError, match="hand.target_ranges"):
+        HandConfig(target_ranges=bad)
+
+
 def test_no_geometry_overlaps_at_the_start_pose_and_fingers_collide():
     env = BaodingEnv(BaodingConfig(num_envs=1, joint_noise=0.0, spawn_noise=0.0))
     m, d = env.model, mujoco.MjData(env.model)

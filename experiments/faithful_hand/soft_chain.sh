@@ -8,7 +8,8 @@
 # 'soft': data/baoding_teacher_NAME, runs/perc/tacgnn_NAME_s0, runs/blind_tacgnn_NAME_s0; the
 # REWARD_SETTINGs are added to the blind run's reward (e.g. its teacher's squeeze_tail).
 # Environment: PERCEPTION, more settings of the in-loop perception (e.g.
-# "anchor_dataset=data/baoding_teacher"), with SUFFIX naming its run runs/blind_tacgnn_NAME_SUFFIX_s0.
+# "anchor_dataset=data/baoding_teacher"), with SUFFIX naming its run runs/blind_tacgnn_NAME_SUFFIX_s0;
+# SEED, the blind run's seed (default 0; its run ends in _sSEED).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 ITERS=${1:-400}
@@ -21,11 +22,12 @@ DATA=data/baoding_teacher_$NAME
 [ -f $DATA/manifest.json ] || $T make-dataset baoding --policy $TEACHER --out $DATA --samples 50000 --settle-steps 0 --seed 0
 PERC=runs/perc/tacgnn_${NAME}_s0
 offline_perception $PERC tacgnn 0 $DATA
-RUN=runs/blind_tacgnn_${NAME}${SUFFIX:+_$SUFFIX}_s0
+SEED=${SEED:-0}
+RUN=runs/blind_tacgnn_${NAME}${SUFFIX:+_$SUFFIX}_s$SEED
 if [ ! -f "$(last $RUN $ITERS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold $REWARD --ppo max_iterations=$ITERS \
     save_interval=50 init_from=$TEACHER init_noise_std=0.2 learning_rate=0.0001 schedule=fixed \
-    privileged_critic=true seed=0 \
+    privileged_critic=true seed=$SEED \
     --perception model.name=tacgnn pretrained=$PERC/checkpoint.pt epochs=2 update_every_steps=400 ${PERCEPTION:-}
 fi
 out=results/table3/$(basename $RUN)_$(basename "$(last $RUN $ITERS)" .pt).json

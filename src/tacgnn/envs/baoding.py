@@ -259,7 +259,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.palm_axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
         self.palm_centre = self.palm_axes @ np.array([0.0, 0.0, -0.0475])
         self._spawn = np.array(cfg.spawn_offsets, dtype=np.float64)  # (2, 3) ball centres at reset
-        self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), self.joint_low, self.joint_high)
+        self.initial_ctrl = np.clip(np.asarray(cfg.initial_joint_pos), *self.target_ranges.T)  # a pose it can hold
         start = m.qpos0.copy()
         start[self.joint_qpos_adr] = self.initial_ctrl
         if self._spawn_overlaps(self._place_balls(start, np.zeros((len(BALLS), 2)))):

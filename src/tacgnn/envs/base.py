@@ -39,6 +39,7 @@ class HandEnvBase:
         self.tactile = make_tactile(skin, self.model, sim)
         lo, hi = np.asarray(hand.joint_ranges, dtype=np.float64).T
         self.joint_low, self.joint_high = lo, hi
+        self.target_ranges = np.asarray(hand.joint_target_ranges(), dtype=np.float64)
         self.joint_qpos_adr = self.model.jnt_qposadr[:NUM_JOINTS].copy()
         self.joint_dof_adr = self.model.jnt_dofadr[:NUM_JOINTS].copy()
         self._rng = np.random.default_rng()
@@ -46,7 +47,7 @@ class HandEnvBase:
     # --- the hand ----------------------------------------------------------------------
     def action_to_ctrl(self, action: np.ndarray) -> np.ndarray:
         """Absolute joint targets from actions in [-1, 1] (clipped), as in the paper."""
-        return observation.action_to_target(action, self.joint_low, self.joint_high)
+        return observation.action_to_target(action, self.joint_low, self.joint_high, self.target_ranges)
 
     def ctrl_to_action(self, ctrl: np.ndarray) -> np.ndarray:
         return observation.target_to_action(ctrl, self.joint_low, self.joint_high)

@@ -28,10 +28,13 @@ BALL_VALUES = 6
 """Two balls, (x, y, z) each."""
 
 
-def action_to_target(action: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """Joint targets (rad) from actions, clipped to [-1, 1] first: -1 -> low, +1 -> high."""
+def action_to_target(action: np.ndarray, low: np.ndarray, high: np.ndarray,
+                     target_ranges: np.ndarray | None = None) -> np.ndarray:
+    """Joint targets (rad) from actions, clipped to [-1, 1] first: -1 -> low, +1 -> high; then
+    clipped to `target_ranges` ((16, 2) rad, `HandConfig.target_ranges`) when given."""
     a = np.clip(action, -1.0, 1.0)
-    return low + 0.5 * (a + 1.0) * (high - low)
+    target = low + 0.5 * (a + 1.0) * (high - low)
+    return target if target_ranges is None else np.clip(target, target_ranges[:, 0], target_ranges[:, 1])
 
 
 def target_to_action(target: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:

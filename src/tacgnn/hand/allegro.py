@@ -91,6 +91,10 @@ class HandConfig:
     """Reflected motor inertia per joint (kg m^2); keeps the stiff joints stable at 5 ms steps."""
     joint_ranges: tuple[tuple[float, float], ...] = DEFAULT_RANGES
     """(low, high) in rad for the 16 joints: index j0-j3, middle, ring, thumb."""
+    target_ranges: tuple[tuple[float, float], ...] = ()
+    """(low, high) in rad the 16 position targets are clipped to, inside `joint_ranges`: a software
+    limit on the commands, as a real hand's driver can set, that keeps a policy's strokes shorter
+    than the joints allow. Empty: the joint ranges. Actions still map onto `joint_ranges`."""
     palm_tilt_deg: float = 15.0
     """Tilt of the palm-up hand about world x; positive lowers the fingertips."""
     friction: float = 1.0
@@ -103,6 +107,12 @@ class HandConfig:
               f"needs 16 (low, high) pairs, got {len(self.joint_ranges)}")
         for name, (lo, hi) in zip(JOINT_NAMES, self.joint_ranges):
             check(lo < hi, "hand.joint_ranges", f"joint {name} has low {lo} >= high {hi}")
+        if self.target_ranges:
+            check(len(self.target_ranges) == 16, "hand.target_ranges",
+                  f"needs 16 (low, high) pairs or none, got {len(self.target_ranges)}")
+            for name, (lo, hi), (jlo, jhi) in zip(JOINT_NAMES, self.target_ranges, self.joint_ranges):
+                check(jlo <= lo < hi <= jhi, "hand.target_ranges",
+                      f"joint {name}: ({lo}, {hi}) must be increasing and inside its joint range ({jlo}, {jhi})")
         _check_per_joint(self.stiffness, "hand.stiffness", lambda v: v > 0, "> 0")
         _check_per_joint(self.damping, "hand.damping", lambda v: v >= 0, ">= 0")
         _check_per_joint(self.torque_limit, "hand.torque_limit", lambda v: v > 0, "> 0")
@@ -114,6 +124,10 @@ class HandConfig:
         check(-90 <= self.palm_tilt_deg <= 90, "hand.palm_tilt_deg", f"must be in [-90, 90], got {self.palm_tilt_deg}")
         check(self.friction > 0, "hand.friction", f"must be positive, got {self.friction}")
         check(self.link_density > 0, "hand.link_density", f"must be positive, got {self.link_density}")
+
+    def joint_target_ranges(self) -> tuple[tuple[float, float], ...]:
+        """The 16 (low, high) ranges position targets are clipped to: `target_ranges` or the joint ranges."""
+        return self.target_ranges or self.joint_ranges
 
     def joint_stiffness(self) -> tuple[float, ...]:
         """The 16 actuator gains, whether configured as one value or per joint."""
@@ -223,9 +237,8 @@ def add_hand(spec: mujoco.MjSpec, cfg: HandConfig) -> None:
     for child in (*(f"{f}_base" for f in FINGER_BASES), "thumb_base"):
         spec.add_exclude(bodyname1="palm", bodyname2=child)
 
-    for joint, actuator, kp, limit in zip(JOINT_NAMES, ACTUATOR_NAMES, cfg.joint_stiffness(),
-                                          cfg.joint_torque_limit()):
-        lo, hi = ranges[joint]
+    for actuator, joint, (lo, hi), kp, limit in zip(ACTUATOR_NAMES, JOINT_NAMES, cfg.joint_target_ranges(),
+                                                     cfg.joint_stiffness(), cfg.joint_torque_limit()):
         act = spec.add_actuator(name=actuator, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         act.set_to_position(kp=kp)
         act.ctrlrange = [lo, hi]

@@ -103,6 +103,7 @@ class BlindController:
         hand = self.env_config.hand
         self.kinematics = TaxelKinematics(hand, self.env_config.skin, self.env_config.sim)
         self.joint_low, self.joint_high = np.asarray(hand.joint_ranges, dtype=np.float64).T
+        self.target_ranges = np.asarray(hand.joint_target_ranges(), dtype=np.float64)
         self.num_taxels = self.kinematics.num_taxels
         self.control_dt = self.env_config.control_dt
         self.track_balls = bool(self.env_config.track_balls)
@@ -115,7 +116,7 @@ class BlindController:
 
     # --- the env's mappings -----------------------------------------------------------
     def action_to_target(self, action: np.ndarray) -> np.ndarray:
-        return observation.action_to_target(action, self.joint_low, self.joint_high)
+        return observation.action_to_target(action, self.joint_low, self.joint_high, self.target_ranges)
 
     def target_to_action(self, target: np.ndarray) -> np.ndarray:
         return observation.target_to_action(target, self.joint_low, self.joint_high)
@@ -212,9 +213,9 @@ class BlindController:
         self.safety.note("max_target_rate", bool((slow != out).any()),
                          f"max_target_rate: target changes limited to {cfg.max_target_rate} rad/s")
         out = slow
-        inside = np.clip(out, self.joint_low, self.joint_high)
+        inside = np.clip(out, self.target_ranges[:, 0], self.target_ranges[:, 1])
         self.safety.note("joint_ranges", bool((np.abs(inside - out) > 1e-9).any()),  # not float round-off
-                         "joint_ranges: targets clipped to the policy's joint ranges")
+                         "joint_ranges: targets clipped to the policy's joint (or target) ranges")
         self.last_target = inside
         return inside
 
