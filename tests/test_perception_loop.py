@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from tacgnn.config import ConfigError
+from tacgnn.config import ConfigError, to_dict
 from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.hand.skin_layout import default_skin
 from tacgnn.learning.checkpoint import load_checkpoint
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.evaluate import evaluate
-from tacgnn.learning.online_perception import OnlinePerceptionConfig
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.policy import load_perception
 from tacgnn.learning.train import train
 from tacgnn.perception.models import PerceptionModelConfig
@@ -263,10 +264,6 @@ def test_anchor_frames_keep_the_in_loop_model_fitting_another_distribution(tmp_p
 
 
 def test_a_missing_anchor_dataset_is_refused_naming_the_key(tmp_path):
-    from tacgnn.config import to_dict
-    from tacgnn.hand.skin_layout import default_skin
-    from tacgnn.learning.online_perception import OnlinePerception
-
     cfg = OnlinePerceptionConfig(anchor_dataset=str(tmp_path / "nowhere"))
     with pytest.raises(ConfigError, match=r"perception.anchor_dataset: .*nowhere.*no dataset manifest"):
         OnlinePerception(cfg, to_dict(default_skin()))

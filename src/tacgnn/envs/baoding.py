@@ -457,7 +457,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if cfg.randomization.enabled:
             randomize(self, ids, u[:, k:])
         q0 = self.initial_ctrl + cfg.joint_noise * (2 * u[:, :NUM_JOINTS] - 1)
-        q0 = np.clip(q0, self.joint_low, self.joint_high)
+        q0 = np.clip(q0, *self.target_ranges.T)
         qpos = sim.qpos[ids]
         qpos[:, self.joint_qpos_adr] = q0
         shift = cfg.spawn_noise * (2 * u[:, NUM_JOINTS:k] - 1).reshape(-1, len(BALLS), 2)
