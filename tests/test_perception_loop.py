@@ -228,11 +228,9 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
 def test_anchor_frames_keep_the_in_loop_model_fitting_another_distribution(tmp_path):
     """With `anchor_dataset` every update also fits frames of another source (here: the
     scripted env's own resets), so the model places them better than one trained on the buffer alone."""
-    from tacgnn.config import to_dict
     from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
     from tacgnn.envs.baoding import BaodingEnv
     from tacgnn.envs.scripted import FingerWave
-    from tacgnn.learning.online_perception import OnlinePerception
     from tacgnn.perception.data import load_tactile
     from tacgnn.perception.objectives import Objective
 

@@ -143,10 +143,7 @@ class OnlinePerception:
         self.joints = torch.zeros(n, self.joint_inputs)  # (n, 0) for a skin-only model
         self.size, self.head, self.steps_seen, self.updates = 0, 0, 0, 0
         self._gen = torch.Generator().manual_seed(seed)
-        self.anchor = self._load_anchor(cfg.anchor_dataset) if cfg.anchor_dataset else None
-        if self.anchor is not None and self.anchor.readings.shape[1] != num_taxels:
-            raise ConfigError(f"perception.anchor_dataset {cfg.anchor_dataset}: frames of "
-                              f"{self.anchor.readings.shape[1]} taxels, this env's skin has {num_taxels}")
+        self.anchor = self._load_anchor(cfg.anchor_dataset, num_taxels) if cfg.anchor_dataset else None
         self._anchor_batch = round(cfg.batch_size * cfg.anchor_share / (1 - cfg.anchor_share))
 
     @torch.inference_mode()
@@ -166,12 +163,17 @@ class OnlinePerception:
         return (*inputs, self.joints[idx]) if self.joint_inputs else inputs
 
     @staticmethod
-    def _load_anchor(path: str):
-        """The anchor frames, or a `ConfigError` naming the key when the dataset is missing or broken."""
+    def _load_anchor(path: str, num_taxels: int):
+        """The anchor frames, or a `ConfigError` naming the key when the dataset is missing, broken
+        or of another skin."""
         try:
-            return load_tactile(path, "baoding")
+            anchor = load_tactile(path, "baoding")
         except DatasetError as err:
             raise ConfigError(f"perception.anchor_dataset: {err}") from None
+        if anchor.readings.shape[1] != num_taxels:
+            raise ConfigError(f"perception.anchor_dataset {path}: frames of "
+                              f"{anchor.readings.shape[1]} taxels, this env's skin has {num_taxels}")
+        return anchor
 
     def _with_anchor(self, inputs: tuple[torch.Tensor, ...], labels: torch.Tensor
                      ) -> tuple[tuple[torch.Tensor, ...], torch.Tensor]:
