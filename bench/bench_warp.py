@@ -10,9 +10,9 @@ of a scripted finger wave after a warm-up, and times:
   compiled numba kernel for 'c', the torch model for 'warp' fed host numpy arrays, and
   'device' the torch model on the engine's device arrays (as the env runs it on Warp).
 * host KB/env-step ('warp'): what a GPU run copies between host and device per env step
-  as the env drives the engine: the engine's host mirrors (the state up before each engine
-  call, state and derived arrays down after; on the CPU the mirrors are switched on for
-  this count) and the skin's traffic (`DeviceTactile.host_bytes`: inputs staged up,
+  as the env drives the engine: the engine's host mirrors (the rows the host changed up
+  before each engine call, the arrays the host reads down after it; on the CPU the mirrors
+  are switched on for this count) and the skin's traffic (`DeviceTactile.host_bytes`: inputs staged up,
   readings and taxel positions copied down). A line per Warp row splits it, beside the
   same count with the skin fed the host mirrors instead of the device arrays.
 

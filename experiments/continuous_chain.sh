@@ -6,6 +6,9 @@
 #
 #   experiments/continuous_chain.sh
 #
+# Environment: SETTINGS, env settings added to every stage (e.g. 'hand.target_ranges=[...]'), with
+# TAG naming the runs runs/gt_TAG_s0, runs/gt_cont_canon_TAG_s0, ...; SEED, the training seed of
+# every stage (default 0; the runs end in _sSEED).
 # Every stage skips what exists and resumes what was cut off, so the script can be rerun.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,13 +22,16 @@ stage() {
   local out=results/continuous/$(basename $1)_$(basename "$(last $1 $2)" .pt).json
   [ -f $out ] || $T evaluate "$(last $1 $2)" --task continuous --episodes 128 --out $out
 }
-CONT="task=continuous ball_order=canonical"
+SEED=${SEED:-0}
+# run NAME: the run directory of stage NAME
+run() { echo runs/$1${TAG:+_$TAG}_s$SEED; }
+CONT="task=continuous ball_order=canonical ${SETTINGS:-}"
 ALIVE="$CONT reward.alive=1.0 reward.fall=-200"
-FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
-train_gt runs/gt_s0 250 "" "" save_interval=100
-stage runs/gt_cont_canon_s0 600 runs/gt_s0/model_000250.pt "$CONT" "$FINE"
-stage runs/gt_cont_alive_s0 600 runs/gt_cont_canon_s0/model_000600.pt "$ALIVE" "$FINE"
-stage runs/gt_cont_long_s0 1500 runs/gt_cont_alive_s0/model_000600.pt "$ALIVE" "$FINE"
-stage runs/gt_cont_rot1_s0 1800 runs/gt_cont_long_s0/model_001500.pt "$ALIVE reward.rotation=1.0" "$FINE"
-stage runs/gt_cont_rot2_s0 300 runs/gt_cont_rot1_s0/model_001800.pt "$ALIVE reward.rotation=1.5" \
-  "init_noise_std=0.2 learning_rate=0.0001 schedule=fixed"
+FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed seed=$SEED"
+train_gt $(run gt) 250 "" "${SETTINGS:-}" "save_interval=100 seed=$SEED"
+stage $(run gt_cont_canon) 600 $(last $(run gt) 250) "$CONT" "$FINE"
+stage $(run gt_cont_alive) 600 $(last $(run gt_cont_canon) 600) "$ALIVE" "$FINE"
+stage $(run gt_cont_long) 1500 $(last $(run gt_cont_alive) 600) "$ALIVE" "$FINE"
+stage $(run gt_cont_rot1) 1800 $(last $(run gt_cont_long) 1500) "$ALIVE reward.rotation=1.0" "$FINE"
+stage $(run gt_cont_rot2) 300 $(last $(run gt_cont_rot1) 1800) "$ALIVE reward.rotation=1.5" \
+  "init_noise_std=0.2 learning_rate=0.0001 schedule=fixed seed=$SEED"

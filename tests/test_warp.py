@@ -215,12 +215,39 @@ def test_host_mirror_path_equals_the_views(pair):
     for name in ("qpos", "qvel", "xpos", "xmat", "sensordata", "actuator_force"):
         np.testing.assert_array_equal(getattr(mirror, name), getattr(view, name), err_msg=name)
     assert np.abs(view.qpos[1] - c.sim.qpos[1]).max() > 1e-6  # env 1 moved; env 0 was reset and placed
-    # the bytes a GPU run copies: the views none, the mirrors at least the state both ways and what is read
+    assert view.host_bytes == 0  # the views copy nothing
+
+
+def test_host_mirrors_move_only_the_rows_written_and_the_arrays_read(pair):
+    """A GPU run's bus traffic: before an engine call only the rows the host changed go up, after it
+    an array comes down when the host first reads it, and an array nobody reads never does."""
+    c, _ = pair
+    view, mirror = WarpSim(c.model, 3), WarpSim(c.model, 3, mirror=True)
+    for sim in (view, mirror):
+        sim.qpos[:] = c.sim.qpos[:3]
+        sim.ctrl[:] = c.sim.ctrl[:3]
+        sim.forward()
+        sim.step(2)
+    _ = mirror.xpos, mirror.xmat  # up to date on the host
     before = mirror.host_bytes
-    mirror.step(1)
-    state = sum(getattr(mirror, n).nbytes for n in ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart"))
-    read = sum(getattr(mirror, n).nbytes for n in ("xpos", "xmat", "sensordata", "actuator_force"))
-    assert view.host_bytes == 0 and mirror.host_bytes - before >= 2 * state + read
+    for sim in (view, mirror):
+        sim.ctrl[1] += 0.05  # one env's command
+        sim.step(1)  # reads qpos and qvel (the divergence check) and the overflow flags
+    row = mirror.ctrl[1].nbytes
+    read = mirror._host["qpos"].nbytes + mirror._host["qvel"].nbytes + 3 * 4
+    assert mirror.host_bytes - before == row + read
+    before = mirror.host_bytes
+    np.testing.assert_array_equal(mirror.xpos, view.xpos)  # read after the step: it comes down, once
+    np.testing.assert_array_equal(mirror.xpos, view.xpos)
+    assert mirror.host_bytes - before == mirror.xpos.nbytes
+    assert not np.array_equal(mirror._host["xmat"], view.xmat)  # not read: still the last step's
+    np.testing.assert_array_equal(mirror.xmat, view.xmat)  # until it is
+    # the engine's state as the host left it: a row written with the arrays out of date lands
+    for sim in (view, mirror):
+        sim.qvel[2] = 0.0
+        sim.step(1)
+    for name in ("qpos", "qvel", "ctrl", "xpos", "sensordata", "actuator_force", "qacc_warmstart"):
+        np.testing.assert_array_equal(getattr(mirror, name), getattr(view, name), err_msg=name)
 
 
 def test_host_mirror_leaves_the_skins_sensor_columns_on_the_device(pair):

@@ -3,9 +3,12 @@
 `WarpSim` has the interface of `BatchedSim` (qpos, qvel, ctrl, xfrc_applied, xpos, xmat,
 sensordata, actuator_force; expand / reset / forward / step), so an env written
 against one runs on the other unchanged. On the CPU its arrays are numpy views of the
-engine's own memory (no copies); on a GPU they are host mirrors, uploaded before and
-downloaded after each engine call, and `device_views()` gives the device arrays as
-torch tensors for code that stays on the device (the skin reads its inputs there:
+engine's own memory (no copies); on a GPU they are host mirrors that move only what host
+code uses: an array the engine changed is downloaded when host code first reads it (an
+array nobody reads, such as `xmat` when the skin runs on the device, never comes down),
+and before an engine call only the rows the host changed go up (a control step uploads
+`ctrl`; a reset, the reset envs' rows). `device_views()` gives the device arrays as torch
+tensors for code that stays on the device (the skin reads its inputs there:
 `DeviceTactile.engine_readings`).
 
 What differs from the C engine, and why:
@@ -44,6 +47,9 @@ _POOL_OVERFLOWS = {1 << 2: "broadphase pairs", 1 << 3: "contacts"}
 # State the env writes, and derived arrays it reads; (name in mujoco_warp.Data, trailing shape).
 _STATE = ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart")
 _DERIVED = ("xpos", "xmat", "sensordata", "actuator_force")
+_FIELDS = _STATE + _DERIVED + ("time",)
+# What an engine step or forward can change (it reads ctrl and xfrc_applied, never writes them).
+_ENGINE_WRITES = ("qpos", "qvel", "qacc_warmstart", "time") + _DERIVED
 
 
 # MuJoCo's integration state (mjSTATE_INTEGRATION) in its order: (component, mujoco_warp.Data
@@ -92,6 +98,19 @@ def warp_model_copy(model: mujoco.MjModel) -> mujoco.MjModel:
     return m
 
 
+class _Mirrored:
+    """A `WarpSim` array as host code sees it: on a mirrored sim, downloaded on the first read
+    after an engine call changed it (a write goes through a read, so it lands on fresh rows)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, sim: WarpSim, owner: type | None = None) -> np.ndarray:
+        if self.name in sim._stale:
+            sim._download(self.name)
+        return sim._host[self.name]
+
+
 class WarpSim:
     """A batch of `num_envs` worlds of `model` on MuJoCo Warp; see `BatchedSim` for the contract.
 
@@ -113,17 +132,17 @@ class WarpSim:
         host_sensors: the sensordata columns the mirror copies down (None: all of them).
     """
 
-    # set from the Data fields of the same names in __init__ (_STATE, _DERIVED, time)
-    qpos: np.ndarray
-    qvel: np.ndarray
-    ctrl: np.ndarray
-    xfrc_applied: np.ndarray
-    qacc_warmstart: np.ndarray
-    xpos: np.ndarray
-    xmat: np.ndarray
-    sensordata: np.ndarray
-    actuator_force: np.ndarray
-    time: np.ndarray
+    # the Data fields of the same names (_FIELDS)
+    qpos = _Mirrored()
+    qvel = _Mirrored()
+    ctrl = _Mirrored()
+    xfrc_applied = _Mirrored()
+    qacc_warmstart = _Mirrored()
+    xpos = _Mirrored()
+    xmat = _Mirrored()
+    sensordata = _Mirrored()
+    actuator_force = _Mirrored()
+    time = _Mirrored()
 
     def __init__(self, model: mujoco.MjModel, num_envs: int, device: str = "cpu", nconmax: int = 64,
                  njmax: int = 256, max_speed: float = 1000.0, mirror: bool | None = None,
@@ -136,8 +155,8 @@ class WarpSim:
         self.num_envs = num_envs
         self.max_speed = max_speed
         self.device = wp.get_device(device)
-        self.mirror = bool(self.device.is_cuda) if mirror is None else bool(mirror)
-        if self.device.is_cuda and not self.mirror:
+        self._mirror = bool(self.device.is_cuda) if mirror is None else bool(mirror)
+        if self.device.is_cuda and not self._mirror:
             raise ValueError("WarpSim on a GPU keeps host mirrors: mirror must not be False")
         m = warp_model_copy(model)
         with wp.ScopedDevice(self.device):
@@ -154,9 +173,11 @@ class WarpSim:
         self._expanded: dict[str, tuple[Any, np.ndarray]] = {}  # field -> (device array (warp), view)
         self._mask = wp.zeros(num_envs, dtype=bool, device=self.device)
         self._device_views: dict[str, Any] | None = None  # made on first use (imports torch)
-        for name in _STATE + _DERIVED + ("time",):
-            setattr(self, name, self._view(getattr(self.wdata, name)))
-        self.xmat = self.xmat.reshape(num_envs, model.nbody, 9)  # (N, nbody, 3, 3) -> C's layout
+        self._host = {name: self._view(getattr(self.wdata, name)) for name in _FIELDS}
+        self._host["xmat"] = self._host["xmat"].reshape(num_envs, model.nbody, 9)  # (N, nbody, 3, 3) -> C's
+        self._stale: set[str] = set()  # mirrored arrays the engine changed since the host last read them
+        self._synced: dict[str, np.ndarray] = {}  # mirror mode: each uploadable array as the device holds it
+        self.mirror = self._mirror  # starts the bookkeeping
         self.host_sensors: np.ndarray | None = None
         self._host_sensor_index: Any = None  # host_sensors as a torch index on the device
         if device_only_sensors is not None and len(device_only_sensors):
@@ -169,27 +190,69 @@ class WarpSim:
         """A numpy view of a device array (CPU), or a host copy of it (mirror)."""
         return array.numpy().copy() if self.mirror else array.numpy()
 
+    @property
+    def mirror(self) -> bool:
+        """Whether the arrays are host copies (a GPU; on the CPU for tests and the bench's byte count)."""
+        return self._mirror
+
+    @mirror.setter
+    def mirror(self, on: bool) -> None:
+        """Switch the mirrors' bookkeeping on (the host arrays taken as what the device holds) or off."""
+        if self.device.is_cuda and not on:
+            raise ValueError("WarpSim on a GPU keeps host mirrors: mirror must not be False")
+        self._mirror = bool(on)
+        self._stale.clear()
+        self._synced = {name: self._host[name].copy() for name in _STATE} if on else {}
+        if on:
+            self._synced.update({field: host.copy() for field, (_, host) in self._expanded.items()})
+
+    def _engine_changed(self, names: tuple[str, ...]) -> None:
+        """Mirror mode: the engine wrote `names` on the device; their host copies are out of date."""
+        if self.mirror:
+            self._stale.update(names)
+
     def _upload(self) -> None:
-        """Mirror mode: push the host copies of the state and model fields to the device."""
+        """Mirror mode: push the rows of the state and model fields the host changed to the device.
+
+        An array out of date on the host was not read since the engine wrote it, so the host
+        did not write it either (`_Mirrored`): it stays as the device has it.
+        """
         if not self.mirror:
             return
         for name in _STATE:
-            getattr(self.wdata, name).assign(getattr(self, name))
-            self.host_bytes += getattr(self, name).nbytes
-        for array, host in self._expanded.values():
-            array.assign(host)
-            self.host_bytes += host.nbytes
+            if name not in self._stale:
+                self._push_changed_rows(getattr(self.wdata, name), self._host[name], self._synced[name])
+        for field, (array, host) in self._expanded.items():
+            self._push_changed_rows(array, host, self._synced[field])
 
-    def _download(self, names=_STATE + _DERIVED + ("time",)) -> None:
-        if not self.mirror:
+    def _push_changed_rows(self, array, host: np.ndarray, synced: np.ndarray) -> None:
+        """Upload the rows (envs) of `host` that differ from `synced`, the device's copy; count them."""
+        changed = np.flatnonzero((host != synced).reshape(len(host), -1).any(axis=1))
+        if len(changed) == 0:
             return
-        for name in names:
-            host = getattr(self, name)
-            if name == "sensordata" and self.host_sensors is not None:
-                self._download_host_sensors()
-                continue
+        if len(changed) == len(host):
+            array.assign(host)
+        else:
+            import torch
+
+            device_rows = self._wp.to_torch(array)
+            index = torch.as_tensor(changed, device=device_rows.device)
+            device_rows[index] = torch.from_numpy(host[changed]).to(device_rows.device).reshape(
+                device_rows[index].shape)
+        synced[changed] = host[changed]
+        self.host_bytes += host[changed].nbytes
+
+    def _download(self, name: str) -> None:
+        """Mirror mode: bring array `name` up to date on the host (only `host_sensors` of sensordata)."""
+        self._stale.discard(name)
+        host = self._host[name]
+        if name == "sensordata" and self.host_sensors is not None:
+            self._download_host_sensors()
+        else:
             host[...] = getattr(self.wdata, name).numpy().reshape(host.shape)
             self.host_bytes += host.nbytes
+        if name in self._synced:
+            self._synced[name][...] = host
 
     def _download_host_sensors(self) -> None:
         """Copy down only the `host_sensors` columns of sensordata, gathered on the device."""
@@ -199,7 +262,7 @@ class WarpSim:
         if self._host_sensor_index is None:
             self._host_sensor_index = torch.as_tensor(self.host_sensors, device=sensordata.device)
         rows = sensordata[:, self._host_sensor_index].cpu().numpy()
-        self.sensordata[:, self.host_sensors] = rows
+        self._host["sensordata"][:, self.host_sensors] = rows
         self.host_bytes += rows.nbytes
 
     @property
@@ -256,6 +319,8 @@ class WarpSim:
         setattr(owner, name, new)
         view = self._view(new)
         self._expanded[field] = (new, view)
+        if self.mirror:
+            self._synced[field] = view.copy()
         return view
 
     def expanded(self, field: str) -> np.ndarray | None:
@@ -276,7 +341,7 @@ class WarpSim:
         self._upload()
         self._set_mask(ids)
         self._mjw.reset_data(self.wmodel, self.wdata, reset=self._mask)
-        self._download()
+        self._engine_changed(_FIELDS)
 
     def forward(self, ids: np.ndarray | None = None) -> None:
         """Recompute derived quantities (poses, contacts, sensors) of envs `ids` at their state.
@@ -298,14 +363,14 @@ class WarpSim:
                 if self.mirror:
                     array.assign(full)
                     self.host_bytes += 2 * full.nbytes  # down, then up again
-        self._download()
+        self._engine_changed(_ENGINE_WRITES)
 
     def step(self, nstep: int) -> np.ndarray:
         """Advance every env by `nstep` physics steps; return a (N,) mask of diverged envs."""
         self._upload()
         for _ in range(nstep):
             self._mjw.step(self.wmodel, self.wdata)
-        self._download()
+        self._engine_changed(_ENGINE_WRITES)
         bad = ~(np.abs(self.qvel).max(1, initial=0.0) <= self.max_speed) | ~np.isfinite(self.qpos).all(1)
         bad |= self._overflowed()
         if bad.any():
@@ -371,4 +436,4 @@ class IntegrationState:
                 array.assign(rows.astype(array.numpy().dtype))
             else:
                 array.numpy()[...] = rows
-        sim._download()
+        sim._engine_changed(_FIELDS)  # written on the device: the host reads them anew
