@@ -11,6 +11,7 @@ import torch
 from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics, ros
 
 torch.set_num_threads(1)
@@ -27,9 +28,10 @@ def controller(policy_file):
 
 
 @pytest.fixture(scope="module")
-def env_after_steps(controller):
-    """Envs of the policy's config, driven by the policy until the balls touch the skin."""
-    env = BaodingEnv(replace(controller.env_config, num_envs=3, seed=0), perception=controller.perception)
+def env_after_steps(controller, policy_file):
+    """Envs of the policy's config, driven by the policy until the balls touch the skin (with a
+    perception of their own: one with memory keeps a state per env)."""
+    env = BaodingEnv(replace(controller.env_config, num_envs=3, seed=0), perception=load_perception(policy_file))
     obs, _ = env.reset(seed=0)
     for _ in range(15):
         obs, *_ = env.step(controller.policy(obs))
@@ -55,13 +57,18 @@ def test_targets_equal_the_env_driven_policys(controller, env_after_steps):
     ids = np.arange(env.num_envs)
     skin = env.tactile_readings(noisy=False)
     assert (skin > 0).sum(1).min() > 0  # the balls press the skin
+    memory = getattr(env.perception, "state", None)  # a perception's memory of each env, if it keeps one
+    memory = None if memory is None else memory.clone()
     obs = env._observe(ids, skin, env.taxel_positions())  # what the env shows the policy in this state
     expected = env.action_to_ctrl(np.clip(controller.policy(obs), -1, 1))
     for i in ids:
         controller.last_action = env.last_action[i].copy()
-        np.testing.assert_allclose(controller.observation(env.joint_pos[i], env.joint_vel[i], skin[i]), obs[i],
-                                   atol=1e-6)
-        target = controller.step(env.joint_pos[i], env.joint_vel[i], skin[i])
+        if memory is not None:  # the controller takes over hand i where the env's perception left it
+            controller.perception.state = memory[i:i + 1].clone()
+            controller.hand.episode_steps[0] = env.episode_steps[i]
+        obs_i = controller.observation(env.joint_pos[i], env.joint_vel[i], skin[i])
+        np.testing.assert_allclose(obs_i, obs[i], atol=1e-6)
+        target = controller.limit(controller.action_to_target(controller.act(obs_i)), env.joint_pos[i])
         np.testing.assert_allclose(target, expected[i], atol=1e-5)
 
 
@@ -203,3 +210,48 @@ def test_stale_messages_hold_with_one_log_line(controller, caplog):
     tick.skin(SimpleNamespace(**{**vars(skin_msg), "palm_Value": [0.0] * 5}))
     with pytest.raises(ValueError, match="patch 'palm' has 5 values, expected 113"):
         tick.check_inputs()
+
+
+def test_a_policy_with_a_temporal_perception_drives_the_hand_as_in_the_env(tmp_path):
+    """The controller keeps the temporal perception's state for its one hand: over an episode its
+    targets equal the env's, frame for frame, and a reset starts the memory afresh."""
+    from tacgnn.envs.baoding import BaodingConfig
+    from tacgnn.learning.config import PPOConfig
+    from tacgnn.learning.online_perception import OnlinePerceptionConfig
+    from tacgnn.learning.train import train
+    from tacgnn.perception.models import PerceptionModelConfig
+
+    loop = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), temporal=True, window=4, burn_in=4,
+                                  update_every_steps=8, epochs=1, buffer_size=64, batch_size=8, warmup_rounds=1,
+                                  temporal_feature=16, temporal_hidden=16)
+    ppo = PPOConfig(num_envs=2, num_steps_per_env=4, max_iterations=2, save_interval=100, num_learning_epochs=1,
+                    num_mini_batches=1, actor_hidden_dims=(16,), critic_hidden_dims=(16,))
+    checkpoint = train(BaodingConfig(obs_mode="perceived"), ppo, tmp_path / "run", perception_cfg=loop)
+    ctl = BlindController(BlindControllerConfig(policy=str(checkpoint)))
+
+    class Recorder:
+        """The env's perception, keeping each call's frames (what a real hand's skin would send)."""
+
+        def __init__(self, perception):
+            self.perception, self.joint_inputs, self.frames = perception, perception.joint_inputs, []
+
+        def bind_env(self, env):
+            self.perception.bind_env(env)
+
+        def __call__(self, readings, taxel_pos, joints):
+            self.frames.append((readings.copy(), joints.copy()))
+            return self.perception(readings, taxel_pos, joints)
+
+    recorder = Recorder(load_perception(checkpoint))
+    env = BaodingEnv(replace(ctl.env_config, num_envs=1, seed=0), perception=recorder)
+    for episode in range(2):
+        obs, _ = env.reset(seed=episode)
+        ctl.reset(env.joint_pos[0])
+        for _ in range(6):
+            readings, joints = recorder.frames[-1]
+            action = np.clip(ctl.policy(obs), -1, 1)
+            target = ctl.step(joints[0], env.joint_vel[0], readings[0])
+            np.testing.assert_allclose(target, env.action_to_ctrl(action)[0], atol=1e-5)
+            obs, _, terminated, truncated, _ = env.step(action)
+            assert not (terminated | truncated).any()
+        assert ctl.hand.episode_steps[0] == 6

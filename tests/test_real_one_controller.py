@@ -15,6 +15,7 @@ from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv, ordered_balls
 from tacgnn.envs.observation import action_to_target, assemble, target_to_action, track_ball_identities
+from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig
 
 torch.set_num_threads(1)
@@ -31,6 +32,9 @@ class FlippingPerception:
         self.inner = inner
         self.joint_inputs = getattr(inner, "joint_inputs", 0)
         self.flips = 0
+
+    def bind_env(self, env):  # a perception with memory keeps its state per env of `env`
+        getattr(self.inner, "bind_env", lambda env: None)(env)
 
     def __call__(self, readings, taxel_pos, *joints):
         pred = np.asarray(self.inner(readings, taxel_pos, *joints), np.float64)
@@ -51,7 +55,7 @@ def test_env_and_controller_give_the_same_observations_and_actions(policy_file, 
     cfg = replace(controller.env_config, num_envs=1, seed=5, max_episode_steps=120,
                   # all substeps in one call (the skin-instant hook below); the physics is the same
                   reward=replace(controller.env_config.reward, squeeze_peak=False))
-    env = BaodingEnv(cfg, perception=FlippingPerception(controller.perception))
+    env = BaodingEnv(cfg, perception=FlippingPerception(load_perception(policy_file)))  # its own memory, if any
     controller.perception = FlippingPerception(controller.perception)
     frames = []  # every skin frame the env computes, and the joint angles at its instant
     readings = env.tactile.readings

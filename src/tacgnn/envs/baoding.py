@@ -247,6 +247,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                             intprm=[_FOUND_AND_FORCE, _STRONGEST_FIRST, BALL_CONTACTS])
         HandEnvBase.__init__(self, spec, cfg.hand, cfg.skin, cfg.sim, cfg.num_envs, cfg.control_dt)
         self.perception = perception
+        bind = getattr(perception, "bind_env", None)
+        if bind is not None:  # a perception with memory keeps one state per env: it reads this env's steps
+            bind(self)
         m = self.model
         self.ball_body = np.array([m.body(b).id for b in BALLS])
         self.ball_qpos_adr = np.array([m.joint(f"{b}_free").qposadr[0] for b in BALLS])

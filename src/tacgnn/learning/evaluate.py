@@ -168,9 +168,6 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
                          f"the env's skin has {env_cfg.skin.num_taxels}")
     policy, _ = load_policy(checkpoint)
     env = BaodingEnv(env_cfg, perception=perception)
-    bind = getattr(perception, "bind_env", None)
-    if bind is not None:  # a temporal perception keeps one state per env
-        bind(env)
     obs, _ = env.reset(seed=seed)
 
     quota = np.full(n, episodes // n)

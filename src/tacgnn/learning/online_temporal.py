@@ -12,8 +12,9 @@ As `tacgnn.learning.online_perception` for a single-frame model, with three diff
          of the same episode without gradient (`tacgnn.perception.sequence_training`).
 
 The per-env state and episode counters are part of `state_dict`, so a resumed run continues
-bit for bit. The env must be bound (`bind_env`) before it observes: `RslBaodingEnv` and
-`tacgnn evaluate` do it.
+bit for bit. It must be bound (`bind_env`) to the envs it reads before they observe:
+`BaodingEnv(perception=...)` binds it, and the real-hand `BlindController` binds it to the
+one hand it drives.
 """
 
 from __future__ import annotations

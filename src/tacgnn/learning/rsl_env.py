@@ -55,9 +55,6 @@ class RslBaodingEnv(VecEnv):
             raise ValueError("obs_mode 'tactile' gives a dict of raw skin arrays, which an MLP policy cannot "
                              "read; use 'perceived' with a perception model, or another obs_mode")
         self.env = BaodingEnv(config, perception=perception)
-        bind = getattr(perception, "bind_env", None)
-        if bind is not None:  # a temporal perception keeps one state per env
-            bind(self.env)
         self.on_step: Callable[[dict], None] | None = None
         self.cfg = to_dict(config)
         self.num_envs = config.num_envs

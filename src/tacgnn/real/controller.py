@@ -21,6 +21,7 @@ one when it stops (with the number of ticks it acted).
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -78,6 +79,24 @@ class SafetyLog:
             self.log.warning("%s: released after %d ticks", rule, self.active.pop(rule))
 
 
+class OneHand:
+    """The env a perception with memory reads (`TemporalOnlinePerception.bind_env`), for the one
+    hand a controller drives: its episode's step count (0 until the first frame after `reset`)
+    and the action last commanded, as the env has them when it observes."""
+
+    num_envs = 1
+
+    def __init__(self, controller: BlindController):
+        self._controller = controller
+        self.episode_steps = np.zeros(1, np.int64)
+
+    @property
+    def last_action(self) -> np.ndarray:
+        action = self._controller.last_action
+        assert action is not None  # the controller resets before it perceives
+        return action[None]
+
+
 class BlindController:
     """(joint_pos rad, joint_vel rad/s, skin (T,)) -> (16,) joint targets in rad, every 1 / 50 s.
 
@@ -100,6 +119,10 @@ class BlindController:
         if mode == "perceived" and perception is None:
             raise ValueError(f"policy {cfg.policy} is a 'perceived' policy but holds no perception model")
         self.perception: Callable[..., np.ndarray] | None = perception
+        self.hand = OneHand(self)
+        bind = getattr(perception, "bind_env", None)
+        if bind is not None:  # a perception with memory: its state follows this hand's episode
+            bind(self.hand)
         hand = self.env_config.hand
         self.kinematics = TaxelKinematics(hand, self.env_config.skin, self.env_config.sim)
         self.joint_low, self.joint_high = np.asarray(hand.joint_ranges, dtype=np.float64).T
@@ -128,6 +151,7 @@ class BlindController:
         self.last_action = self.target_to_action(np.clip(q, self.joint_low, self.joint_high))
         self.last_target = None
         self.balls = self.spawn_balls.copy()
+        self.hand.episode_steps[0] = 0  # a perception with memory starts afresh
 
     def perceive(self, joint_pos: np.ndarray, skin: np.ndarray, skin_joint_pos: np.ndarray | None = None) -> np.ndarray:
         """(6,) ball positions (m, world frame) from the skin, identities tracked as in the env;
@@ -139,6 +163,7 @@ class BlindController:
         taxel_pos = self.kinematics.positions(kin_q)[None]
         previous = self.balls if self.track_balls else None
         self.balls = observation.perceive_balls(self.perception, skin[None], taxel_pos, joint_pos[None], previous)
+        self.hand.episode_steps[0] += 1
         return self.balls[0]
 
     def observation(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray,
@@ -188,12 +213,16 @@ class BlindController:
         """Run the networks on a state without changing the controller's state: the first calls
         pay for lazy initialisation (hundreds of ms), which must not fall on a control tick."""
         saved = (self.last_action, self.last_target, self.balls.copy(), self.safety.active.copy())
+        memory = self.hand.episode_steps.copy(), copy.deepcopy(getattr(self.perception, "state", None))
         touched = np.zeros(self.num_taxels)
         touched[::10] = 0.1  # contacts all over the skin: the graph code compiles on its first contacts
         for frame in (skin, touched, np.zeros(self.num_taxels)):
             for _ in range(ticks):
                 self.act(self.observation(joint_pos, joint_vel, frame))
         self.last_action, self.last_target, self.balls, self.safety.active = saved
+        self.hand.episode_steps[:] = memory[0]
+        if memory[1] is not None:
+            self.perception.state = memory[1]  # type: ignore[union-attr]
 
     def limit(self, target: np.ndarray, joint_pos: np.ndarray) -> np.ndarray:
         """The safety rules on a target: step limit, rate limit, joint ranges (in that order)."""
