@@ -6,11 +6,12 @@ ground-truth policy. Both read frames neither has seen: rollouts of the ground-t
 with another seed. Writes ``docs/perception_generalisation.json`` (overall, touched and
 untouched RMSE in cm, the ratio shipped / offline, provenance).
 
-The fresh frames (3,000, the teacher dataset's settings, seed 7)::
+The fresh frames (3,000, the teacher dataset's settings, seed 7; every step kept, so that a
+perception with memory reads each episode from its first frame as in the env)::
 
-    tacgnn make-dataset baoding --out data/baoding_fresh_s7 --samples 3000 --shard-size 3000 \\
-        --keep-every 2 --envs 64 --settle-steps 0 --policy runs/gt_hold_s0/model_000300.pt --seed 7
-    .venv/bin/python experiments/perception_generalisation.py --dataset data/baoding_fresh_s7 \\
+    tacgnn make-dataset baoding --out data/baoding_fresh_seq_s7 --samples 3000 --shard-size 3000 \\
+        --keep-every 1 --envs 16 --settle-steps 0 --policy runs/gt_hold_s0/model_000300.pt --seed 7
+    .venv/bin/python experiments/perception_generalisation.py --dataset data/baoding_fresh_seq_s7 \\
         --offline runs/table2/tacgnn-32_s0/checkpoint.pt
 """
 
@@ -23,16 +24,19 @@ from pathlib import Path
 import torch
 
 from tacgnn.datasets.store import read_manifest
+from tacgnn.learning.online_temporal import TemporalOnlinePerception
 from tacgnn.learning.policy import SHIPPED_POLICY, load_perception
 from tacgnn.perception.checkpoint import load_model
 from tacgnn.perception.data import load_tactile
 from tacgnn.perception.evaluation import ball_visibility_errors, predict
 from tacgnn.perception.objectives import Objective
+from tacgnn.perception.sequence_evaluation import sequence_predictions
+from tacgnn.perception.sequences import load_sequences
 from tacgnn.provenance import provenance
 
 
-def errors(model: torch.nn.Module, data) -> dict[str, float]:
-    pred = predict(model, data)  # type: ignore[arg-type]
+def errors(pred: torch.Tensor, data) -> dict[str, float]:
+    """Position RMSE (cm) of predictions `pred` (N, 6) of `data`'s frames: all, touched and untouched balls."""
     out = {"position_rmse_cm": Objective("baoding", True).metrics(pred, data.targets)["position_rmse_cm"]}
     vis = ball_visibility_errors(pred, data, True)
     return {**out, "touched_rmse_cm": vis["seen_rmse_cm"], "untouched_rmse_cm": vis["blind_rmse_cm"],
@@ -47,12 +51,17 @@ def main() -> None:
     parser.add_argument("--out", default="docs/perception_generalisation.json")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    data = load_tactile(args.dataset, "baoding")
     shipped = load_perception(args.policy)
     if shipped is None:
         raise SystemExit(f"{args.policy}: holds no perception (not a blind policy)")
     offline, _, _ = load_model(args.offline)
-    rows = {"shipped": errors(shipped.model, data), "offline": errors(offline, data)}
+    data = load_tactile(args.dataset, "baoding")
+    if isinstance(shipped, TemporalOnlinePerception):  # memory: each episode read from its first frame
+        sequences = load_sequences(args.dataset)  # the same frames, in episode order
+        shipped_row = errors(sequence_predictions(shipped.filter, shipped.train_cfg, sequences), sequences.frames)
+    else:
+        shipped_row = errors(predict(shipped.model, data), data)
+    rows = {"shipped": shipped_row, "offline": errors(predict(offline, data), data)}
     ratio = rows["shipped"]["position_rmse_cm"] / rows["offline"]["position_rmse_cm"]
     for name, r in rows.items():
         print(f"{name:>8}: {r['position_rmse_cm']:.3f} cm (touched {r['touched_rmse_cm']:.3f}, untouched "
