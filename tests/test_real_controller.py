@@ -214,7 +214,8 @@ def test_stale_messages_hold_with_one_log_line(controller, caplog):
 
 def test_a_policy_with_a_temporal_perception_drives_the_hand_as_in_the_env(tmp_path):
     """The controller keeps the temporal perception's state for its one hand: over an episode its
-    targets equal the env's, frame for frame, and a reset starts the memory afresh."""
+    targets equal the env's, frame for frame, a warm-up mid-episode leaves the memory as it was,
+    and a reset starts it afresh."""
     from tacgnn.envs.baoding import BaodingConfig
     from tacgnn.learning.config import PPOConfig
     from tacgnn.learning.online_perception import OnlinePerceptionConfig
@@ -247,8 +248,10 @@ def test_a_policy_with_a_temporal_perception_drives_the_hand_as_in_the_env(tmp_p
     for episode in range(2):
         obs, _ = env.reset(seed=episode)
         ctl.reset(env.joint_pos[0])
-        for _ in range(6):
+        for step in range(6):
             readings, joints = recorder.frames[-1]
+            if step == 3:
+                ctl.warm_up(joints[0], env.joint_vel[0], readings[0], ticks=1)
             action = np.clip(ctl.policy(obs), -1, 1)
             target = ctl.step(joints[0], env.joint_vel[0], readings[0])
             np.testing.assert_allclose(target, env.action_to_ctrl(action)[0], atol=1e-5)
