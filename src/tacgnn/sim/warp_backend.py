@@ -177,7 +177,7 @@ class WarpSim:
         self._host["xmat"] = self._host["xmat"].reshape(num_envs, model.nbody, 9)  # (N, nbody, 3, 3) -> C's
         self._stale: set[str] = set()  # mirrored arrays the engine changed since the host last read them
         self._synced: dict[str, np.ndarray] = {}  # mirror mode: each uploadable array as the device holds it
-        self.mirror = self._mirror  # starts the bookkeeping
+        self._start_mirrors(self._mirror)
         self.host_sensors: np.ndarray | None = None
         self._host_sensor_index: Any = None  # host_sensors as a torch index on the device
         if device_only_sensors is not None and len(device_only_sensors):
@@ -197,10 +197,15 @@ class WarpSim:
 
     @mirror.setter
     def mirror(self, on: bool) -> None:
-        """Switch the mirrors' bookkeeping on (the host arrays taken as what the device holds) or off."""
+        """Switch the mirrors on (the host arrays taken as what the device holds) or off; on the CPU
+        only, where the host arrays are the engine's memory (the bench counts bytes this way)."""
         if self.device.is_cuda and not on:
             raise ValueError("WarpSim on a GPU keeps host mirrors: mirror must not be False")
-        self._mirror = bool(on)
+        if bool(on) != self._mirror:
+            self._start_mirrors(bool(on))
+
+    def _start_mirrors(self, on: bool) -> None:
+        self._mirror = on
         self._stale.clear()
         self._synced = {name: self._host[name].copy() for name in _STATE} if on else {}
         if on:
