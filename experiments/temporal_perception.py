@@ -122,7 +122,7 @@ def main() -> None:
     parser.add_argument("--train-error", action="store_true", help="also the error on the training episodes")
     parser.add_argument("--lose-patch", default="palm", help="also the error with this skin patch reading 0 ('' none)")
     parser.add_argument("--out", default="docs/temporal_perception.json")
-    parser.add_argument("--figure", default="docs/fig_blind_area.png")
+    parser.add_argument("--figure", default="docs/fig_blind_area.png", help="the plot ('' for none)")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
@@ -179,8 +179,9 @@ def main() -> None:
                                           "paper_tacgnn32_test_cm": PAPER_TACGNN32_TEST_CM, "runs": results},
                                          indent=1))
     print(f"wrote {args.out}")
-    plot(results, args.figure)
-    print(f"wrote {args.figure}")
+    if args.figure:
+        plot(results, args.figure)
+        print(f"wrote {args.figure}")
 
 
 def plot(results: dict, path: str) -> None:
