@@ -237,6 +237,9 @@ def test_ppo_overrides(items, key):
     ("env", ["sim.nthread=100000"], "sim.nthread"),
     ("env", ["num_envs=10000000"], "num_envs"),
     ("env", ["task=[1,"], "task"),
+    ("env", ["ball_radius=1.3e-264"], "ball_radius"),  # an inertia MuJoCo refuses at compile
+    ("env", ["ball_mass=1e-300"], "ball_mass"),
+    ("env", ["randomization.enabled=true", "randomization.ball_mass=[1e-300,0.2]"], "randomization.ball_mass"),
     ("grasp", ["control_dt=-0.5"], "control_dt"),
     ("perception", ["threads=0"], "threads"),
     ("perception", ["threads=100000"], "threads"),

@@ -204,6 +204,16 @@ class BaodingConfig:
               f"must be a positive whole number of control steps ({self.control_dt} s), got {self.continuous_seconds}")
         check(self.ball_radius > 0, "ball_radius", f"must be positive, got {self.ball_radius}")
         check(self.ball_mass > 0, "ball_mass", f"must be positive, got {self.ball_mass}")
+        # MuJoCo refuses a moving body whose mass or inertia is below mjMINVAL (at compile, or
+        # silently misbehaves when randomisation sets it later)
+        key, lightest = "ball_mass", self.ball_mass
+        if self.randomization.enabled and self.randomization.ball_mass[0] < lightest:
+            key, lightest = "randomization.ball_mass", self.randomization.ball_mass[0]
+        check(lightest > mujoco.mjMINVAL, key,
+              f"must be above MuJoCo's smallest mass ({mujoco.mjMINVAL} kg), got {lightest}")
+        check(0.4 * lightest * self.ball_radius**2 > mujoco.mjMINVAL, "ball_radius",
+              f"{self.ball_radius} m gives a {lightest} kg ball an inertia below MuJoCo's smallest "
+              f"({mujoco.mjMINVAL} kg m^2)")
         check(self.ball_friction > 0, "ball_friction", "must be positive")
         check(len(self.initial_joint_pos) == NUM_JOINTS, "initial_joint_pos", "needs 16 values")
         check(self.success_angle_deg > 0, "success_angle_deg", "must be positive")
