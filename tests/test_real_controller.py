@@ -13,6 +13,7 @@ from real_policy import blind_policy
 from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics, ros
+from tests.test_temporal_loop import _run as temporal_blind_run
 
 torch.set_num_threads(1)
 
@@ -216,18 +217,7 @@ def test_a_policy_with_a_temporal_perception_drives_the_hand_as_in_the_env(tmp_p
     """The controller keeps the temporal perception's state for its one hand: over an episode its
     targets equal the env's, frame for frame, a warm-up mid-episode leaves the memory as it was,
     and a reset starts it afresh."""
-    from tacgnn.envs.baoding import BaodingConfig
-    from tacgnn.learning.config import PPOConfig
-    from tacgnn.learning.online_perception import OnlinePerceptionConfig
-    from tacgnn.learning.train import train
-    from tacgnn.perception.models import PerceptionModelConfig
-
-    loop = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), temporal=True, window=4, burn_in=4,
-                                  update_every_steps=8, epochs=1, buffer_size=64, batch_size=8, warmup_rounds=1,
-                                  temporal_feature=16, temporal_hidden=16)
-    ppo = PPOConfig(num_envs=2, num_steps_per_env=4, max_iterations=2, save_interval=100, num_learning_epochs=1,
-                    num_mini_batches=1, actor_hidden_dims=(16,), critic_hidden_dims=(16,))
-    checkpoint = train(BaodingConfig(obs_mode="perceived"), ppo, tmp_path / "run", perception_cfg=loop)
+    checkpoint = temporal_blind_run(tmp_path / "run", 2)  # a small blind run, temporal perception in the loop
     ctl = BlindController(BlindControllerConfig(policy=str(checkpoint)))
 
     class Recorder:
