@@ -203,7 +203,6 @@ class BaodingConfig:
         check(self.continuous_seconds > 0 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",
               f"must be a positive whole number of control steps ({self.control_dt} s), got {self.continuous_seconds}")
         check(self.ball_radius > 0, "ball_radius", f"must be positive, got {self.ball_radius}")
-        check(self.ball_mass > 0, "ball_mass", f"must be positive, got {self.ball_mass}")
         # MuJoCo refuses a moving body whose mass or inertia is below mjMINVAL (at compile, or
         # silently misbehaves when randomisation sets it later)
         key, lightest = "ball_mass", self.ball_mass
@@ -211,7 +210,7 @@ class BaodingConfig:
             key, lightest = "randomization.ball_mass", self.randomization.ball_mass[0]
         check(lightest > mujoco.mjMINVAL, key,
               f"must be above MuJoCo's smallest mass ({mujoco.mjMINVAL} kg), got {lightest}")
-        check(0.4 * lightest * self.ball_radius**2 > mujoco.mjMINVAL, "ball_radius",
+        check(sphere_inertia(lightest, self.ball_radius) > mujoco.mjMINVAL, "ball_radius",
               f"{self.ball_radius} m gives a {lightest} kg ball an inertia below MuJoCo's smallest "
               f"({mujoco.mjMINVAL} kg m^2)")
         check(self.ball_friction > 0, "ball_friction", "must be positive")
@@ -662,6 +661,12 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         }
 
 
+def sphere_inertia(mass, radius: float):
+    """A solid ball's moment of inertia about any axis through its centre (kg m^2), as MuJoCo
+    computes it from the geom."""
+    return 0.4 * mass * radius**2
+
+
 def _capped(degrees: np.ndarray, cap: float) -> np.ndarray:
     """Per-step turn (deg) counted at most `cap` forward (0: no cap); turning back is never capped."""
     return np.minimum(degrees, cap) if cap > 0 else degrees
@@ -740,7 +745,7 @@ def randomize(env: BaodingEnv, ids: np.ndarray, u: np.ndarray) -> None:
             (r.ball_mass, r.friction_scale, r.gravity, r.stiffness_scale, r.damping_scale,
              r.torque_limit_scale), columns[:-1], columns[1:]))
     sim.expand("body_mass")[np.ix_(ids, env.ball_body)] = ball_mass
-    sim.expand("body_inertia")[np.ix_(ids, env.ball_body)] = (0.4 * cfg.ball_radius**2 * ball_mass)[..., None]
+    sim.expand("body_inertia")[np.ix_(ids, env.ball_body)] = sphere_inertia(ball_mass, cfg.ball_radius)[..., None]
     sim.set_const(ids)  # the balls' mass matrix (dof_M0) follows their new masses
     sim.expand("geom_friction")[ids, :, 0] = model.geom_friction[:, 0] * friction_scale
     sim.expand("opt.gravity")[ids] = np.concatenate([np.zeros((len(ids), 2)), -gravity], axis=1)
