@@ -39,6 +39,7 @@ from tacgnn.perception.models import PerceptionModelConfig
         ("head_hidden", -1),
         ("pos_scale", 0.0),
         ("pos_scale", float("inf")),
+        ("pos_scale", 1e300),  # accepted once, then the model's outputs were NaN (found by the config fuzz test)
         ("residual", "yes"),
         ("reading_feature", "log"),
         ("gcn_node_positions", "mean"),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from tacgnn.config import check
@@ -31,6 +30,7 @@ _SEQUENCES = ("k", "downsample_layers", "mlp_hidden", "gcn_channels")
 _POSITIVE_INTS = {"out_dim": 1024, "num_taxels": 65536, "channels": 4096, "image_size": 512, "gcn_k": 64,
                   "message_layers": 16, "head_layers": 16}
 _MAX_WIDTH, _MAX_K, _MAX_LAYERS = 4096, 64, 16
+_MAX_POS_SCALE = 1e3  # taxel positions (cm) times it feed float32 layers: far beyond this they overflow
 _BOOLS = ("use_force", "self_loop", "exact_graph", "residual")
 
 
@@ -139,8 +139,8 @@ class PerceptionModelConfig:
         check(self.gcn_node_positions in GCN_NODE_POSITIONS, "gcn_node_positions",
               f"must be one of {GCN_NODE_POSITIONS}, got {self.gcn_node_positions!r}")
         check(self.pool in POOLS, "pool", f"must be one of {POOLS}, got {self.pool!r}")
-        check(_is_number(self.pos_scale) and 0 < self.pos_scale < math.inf, "pos_scale",
-              f"must be a positive number, got {self.pos_scale!r}")
+        check(_is_number(self.pos_scale) and 0 < self.pos_scale <= _MAX_POS_SCALE, "pos_scale",
+              f"must be a positive number up to {_MAX_POS_SCALE:g}, got {self.pos_scale!r}")
         check(self.joint_inputs in (0, 16) and _is_int(self.joint_inputs), "joint_inputs",
               f"must be 0 (skin only) or 16 (the hand's joint angles), got {self.joint_inputs!r}")
         check(not self.joint_inputs or self.name in ("tacgnn", "mlp"), "joint_inputs",
