@@ -236,6 +236,18 @@ def test_domain_randomisation_draws_per_env_physics_in_range():
     assert np.all((7 <= gravity) & (gravity <= 12)) and np.unique(gravity).size == 8
 
 
+def test_a_ball_randomised_to_its_compiled_mass_keeps_its_compiled_physics():
+    """The randomised inertia is MuJoCo's own to the last bit, so a ball drawn at the compiled mass
+    leaves the engine's derived constants (the mass matrix dof_M0) exactly as compiled."""
+    from tacgnn.envs.baoding import sphere_inertia
+
+    env = make(4, randomization=RandomizationConfig(enabled=True, ball_mass=(0.15, 0.15)))
+    assert np.array_equal(sphere_inertia(env.model.body_mass[env.ball_body], BaodingConfig().ball_radius),
+                          env.model.body_inertia[env.ball_body, 0])
+    env.reset(seed=0)
+    assert env.sim.batch.expanded("dof_M0") is None
+
+
 def test_track_ball_identities_known_answer():
     from tacgnn.envs.baoding import track_ball_identities
 

@@ -663,8 +663,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
 def sphere_inertia(mass, radius: float):
     """A solid ball's moment of inertia about any axis through its centre (kg m^2), as MuJoCo
-    computes it from the geom."""
-    return 0.4 * mass * radius**2
+    computes it from the geom, to the last bit (MuJoCo's order of operations: a ball at its
+    compiled mass gets exactly its compiled inertia, so `set_const` leaves `dof_M0` as compiled)."""
+    return 2 * mass * radius * radius / 5
 
 
 def _capped(degrees: np.ndarray, cap: float) -> np.ndarray:
