@@ -150,13 +150,18 @@ class OnlinePerception:
     def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
         """(N, 6) ball positions in metres from (N, T) readings, (N, T, 3) positions in metres
         and, for a model with `joint_inputs`, (N, 16) joint angles in rad."""
-        if self.model.training:  # eval() walks every submodule: a fifth of a one-frame call
-            self.model.eval()
+        self._to_eval()
         inputs = [torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
                   torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32))]
         if joints is not None:
             inputs.append(torch.from_numpy(np.ascontiguousarray(joints, np.float32)))
         return self.model(*inputs).numpy().astype(np.float64) / 100.0
+
+    def _to_eval(self) -> None:
+        """Put the model in eval mode to act. Only when it is not: eval() walks every submodule, a
+        tenth to a fifth of a one-frame call."""
+        if self.model.training:
+            self.model.eval()
 
     def _inputs(self, idx: torch.Tensor) -> tuple[torch.Tensor, ...]:
         inputs = (self.readings[idx], self.positions[idx])

@@ -123,8 +123,7 @@ class TemporalOnlinePerception(OnlinePerception):
             raise RuntimeError(f"the env asked for the balls of {rows} envs, but {len(fresh)} of its {n} envs "
                                "are at their episode's start: a temporal perception cannot tell which envs "
                                "these frames belong to")
-        if self.model.training:  # eval() walks every submodule: a tenth of a one-frame call
-            self.model.eval()
+        self._to_eval()
         out, new_state = self.filter.step(
             torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
             torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32)),
