@@ -12,6 +12,7 @@ import torch
 from tacgnn.learning.checkpoint import load_checkpoint
 from tacgnn.perception.checkpoint import make_model
 from tacgnn.perception.train_config import default_model_config
+from tacgnn.user_errors import run_script
 
 
 def per_call(fn, repeats: int) -> float:
@@ -65,4 +66,4 @@ def _tensors(d):
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -40,6 +40,7 @@ from tacgnn.perception.models import MODEL_NAMES, PerceptionModelConfig, build_m
 from tacgnn.perception.train_config import TRAIN_MODEL_DEFAULTS, default_model_config
 from tacgnn.perception.training import make_optimizer
 from tacgnn.runtime import keep_freed_memory
+from tacgnn.user_errors import run_script
 
 T = 653
 
@@ -202,4 +203,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

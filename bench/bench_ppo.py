@@ -21,6 +21,7 @@ from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.rsl_env import RslBaodingEnv
 from tacgnn.learning.runner import make_runner
 from tacgnn.learning.train import seed_everything
+from tacgnn.user_errors import run_script
 
 
 def bench(num_envs: int, iters: int, tactile: bool) -> dict:
@@ -69,4 +70,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

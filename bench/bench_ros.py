@@ -28,7 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tacgnn.files import atomic_write_text
 from tacgnn.real.loopback_master import free_port, loopback_env, start_roscore, stop_roscore
+from tacgnn.user_errors import run_script
 
 
 def busy_processes(seconds: float = 2.0, min_cpu: float = 10.0) -> list[dict]:
@@ -205,10 +207,10 @@ def main() -> None:
         result["provenance"] = provenance({"policy": policy}, args.seed, {k: v for k, v in vars(args).items()
                                                                          if k != "out"})
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(result, indent=1))
+        atomic_write_text(args.out, json.dumps(result, indent=1))
         print(f"wrote {args.out}")
     shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -16,6 +16,7 @@ import time
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.scripted import FingerWave
+from tacgnn.user_errors import run_script
 
 
 def timed(fn, repeats: int) -> float:
@@ -93,4 +94,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -28,6 +28,7 @@ import torch
 
 from tacgnn.perception.models.build import build_model
 from tacgnn.perception.models.temporal import TemporalModelConfig, TemporalPerception
+from tacgnn.user_errors import run_script
 
 T, B = 653, 256
 
@@ -97,4 +98,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

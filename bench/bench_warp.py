@@ -32,6 +32,7 @@ import torch
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.scripted import FingerWave
+from tacgnn.user_errors import run_script
 
 
 def _sync(device: str) -> None:
@@ -184,4 +185,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -31,9 +31,11 @@ import numpy as np  # noqa: E402
 
 from tacgnn.config import override, parse_overrides, to_dict  # noqa: E402
 from tacgnn.envs.baoding import BaodingEnv  # noqa: E402
+from tacgnn.files import atomic_write, atomic_write_text  # noqa: E402
 from tacgnn.learning.evaluate import perception_from_file  # noqa: E402
 from tacgnn.learning.policy import load_perception, load_policy  # noqa: E402
 from tacgnn.provenance import provenance  # noqa: E402
+from tacgnn.user_errors import labelled_paths, run_script  # noqa: E402
 
 
 def ball_errors_cm(perceived: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -114,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--video", type=Path, metavar="OUT.mp4")
     args = parser.parse_args(argv)
     changes = parse_overrides(args.set)
-    items = [p.split("=", 1) for p in args.policies]
+    items = labelled_paths(args.policies)
     runs = [(label, ckpt, run_episodes(ckpt, args.episodes, args.seed, changes, args.perception))
             for label, ckpt in items]
     rows = sum(1 + (r["errors"] is not None) for _, _, r in runs)
@@ -148,11 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=90)
+    atomic_write(args.out, lambda fh: fig.savefig(fh, dpi=90, format=args.out.suffix[1:] or "png"))
     record = {"episodes": summary,
               "provenance": provenance({**{label: ckpt for label, ckpt, _ in runs}, "perception": args.perception},
                                        args.seed, {"episodes": args.episodes, "set": args.set})}
-    args.out.with_suffix(".json").write_text(json.dumps(record, indent=2))
+    atomic_write_text(args.out.with_suffix(".json"), json.dumps(record, indent=2))
     if args.video:
         film(items[0][1], args.video, args.seed, changes, args.perception)
     for e in summary:
@@ -162,4 +164,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -24,7 +24,9 @@ import numpy as np
 from continuous_angle import run_episodes
 
 from tacgnn.config import parse_overrides
+from tacgnn.files import atomic_write_text
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import labelled_paths, run_script
 
 RULES = ("below the palm plane", "above the height band", "beyond the palm radius")
 BEFORE_STEPS = (1, 5, 10, 15, 20, 25, 30, 40, 50, 75, 100)
@@ -118,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--truth-too", action="store_true", help="also run blind policies on the true positions")
     args = parser.parse_args(argv)
     changes = parse_overrides(args.set)
-    items = [p.split("=", 1) for p in args.policies]
+    items = labelled_paths(args.policies)
     results = {}
     for label, ckpt in items:
         r = run_episodes(ckpt, args.episodes, args.seed, changes, None)
@@ -142,9 +144,9 @@ def main(argv: list[str] | None = None) -> int:
                                        {"episodes": args.episodes, "set": args.set, "window": args.window,
                                         "truth_too": args.truth_too})}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(record, indent=2))
+    atomic_write_text(args.out, json.dumps(record, indent=2))
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -34,10 +34,12 @@ import numpy as np
 
 from tacgnn.config import override, parse_overrides
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.files import atomic_write_text
 from tacgnn.hand.allegro import JOINT_NAMES
 from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.provenance import provenance
 from tacgnn.sim.scene import hand_scene
+from tacgnn.user_errors import labelled_paths, run_script
 
 FINGER_JOINTS = 12  # index, middle, ring; the thumb is nearly frozen in the Baoding task
 SQUARE_HZ = (1.0, 1.5, 2.0, 2.6, 3.0, 4.0, 5.0, 6.0, 8.0)
@@ -219,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="actuator torque limits of the bare-hand test (the first is the task's)")
     args = parser.parse_args(argv)
     changes = parse_overrides(args.set)
-    items = [p.split("=", 1) for p in args.policies]
+    items = labelled_paths(args.policies)
     base = override(BaodingConfig(task="continuous", tactile=False), changes)
     hand = {f"{lim:g} N m": hand_limits(base, lim, range(FINGER_JOINTS)) for lim in args.limits}
     for name, h in hand.items():
@@ -252,9 +254,9 @@ def main(argv: list[str] | None = None) -> int:
               "provenance": provenance(dict(items), args.seed,
                                        {"episodes": args.episodes, "set": args.set, "limits": args.limits})}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(record, indent=2))
+    atomic_write_text(args.out, json.dumps(record, indent=2))
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 import torch
 
+from tacgnn.config import ConfigError
 from tacgnn.datasets.store import read_manifest
+from tacgnn.files import atomic_write_text
 from tacgnn.learning.online_temporal import TemporalOnlinePerception
 from tacgnn.learning.policy import SHIPPED_POLICY, load_perception
 from tacgnn.perception.checkpoint import load_model
@@ -33,6 +34,7 @@ from tacgnn.perception.objectives import Objective
 from tacgnn.perception.sequence_evaluation import sequence_predictions
 from tacgnn.perception.sequences import load_sequences
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import run_script
 
 
 def errors(pred: torch.Tensor, data) -> dict[str, float]:
@@ -53,7 +55,7 @@ def main() -> None:
     torch.set_num_threads(1)
     shipped = load_perception(args.policy)
     if shipped is None:
-        raise SystemExit(f"{args.policy}: holds no perception (not a blind policy)")
+        raise ConfigError(f"{args.policy}: holds no perception (not a blind policy)")
     offline, _, _ = load_model(args.offline)
     data = load_tactile(args.dataset, "baoding")
     if isinstance(shipped, TemporalOnlinePerception):  # memory: each episode read from its first frame
@@ -73,9 +75,9 @@ def main() -> None:
               "target_ratio": 1.2,
               "provenance": provenance({"policy": args.policy, "offline": args.offline}, meta.get("seed"),
                                        {"dataset": args.dataset})}
-    Path(args.out).write_text(json.dumps(result, indent=1))
+    atomic_write_text(args.out, json.dumps(result, indent=1))
     print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

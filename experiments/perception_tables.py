@@ -25,11 +25,13 @@ import numpy as np
 from tacgnn.datasets import baoding_data, grasp_data
 from tacgnn.datasets.store import read_manifest
 from tacgnn.envs.grasp import GraspConfig
+from tacgnn.files import atomic_write, atomic_write_text
 from tacgnn.perception.checkpoint import load_checkpoint
 from tacgnn.perception.evaluation import evaluate
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import train
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import run_script
 
 PAPER_TABLE1 = {  # object: model: (position cm, orientation deg)
     "cube": {"mlp": (0.187, 12.31), "cnn": (0.891, 15.87), "gcn": (0.195, 10.33), "tacgnn": (0.176, 9.17)},
@@ -207,14 +209,14 @@ def main() -> None:
         if trained:  # result files carry the command that trained them, not a later --report
             write_table1_results(data, args, seeds)
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
-        (ROOT / "docs" / f"{page_stem('perception_table1', args)}.md").write_text(text)
+        atomic_write_text(ROOT / "docs" / f"{page_stem('perception_table1', args)}.md", text)
         print(text)
         return
 
     if args.only_curve:
         models = chosen(TABLE1_MODELS, args) if args.models else CURVE_MODELS
         text = "\n".join(lines[:4] + data_curve_lines(data, args, models)) + "\n"
-        (ROOT / "docs" / f"{page_stem('perception_data_curve', args)}.md").write_text(text)
+        atomic_write_text(ROOT / "docs" / f"{page_stem('perception_data_curve', args)}.md", text)
         print(text)
         return
 
@@ -268,8 +270,8 @@ def main() -> None:
     plot_curves(table2, ROOT / "docs" / f"{stem}.png")
     lines += ["", f"Learning curves (test RMSE per epoch, seed 0): `docs/{stem}.png`.", ""]
     out = ROOT / "docs" / f"{stem}.md"
-    out.write_text("\n".join(lines))
-    (ROOT / "docs" / f"{stem}.json").write_text(json.dumps(
+    atomic_write_text(out, "\n".join(lines))
+    atomic_write_text(ROOT / "docs" / f"{stem}.json", json.dumps(
         {row_label(*k): [r["final"] for r in runs] for k, runs in table2.items()}, indent=1))
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "
@@ -319,7 +321,7 @@ def write_table1_results(data: dict[str, Path], args, seeds) -> None:
                           "seconds_per_epoch": float(np.mean([h["seconds"] for h in r["history"]])),
                           "provenance": provenance({"perception": r["ckpt"]}, s,
                                                    {**cfg, "dataset": str(data[obj].relative_to(ROOT))})}
-                (out / f"{obj}_{row_label(m, ch)}_s{s}.json").write_text(json.dumps(result, indent=1) + "\n")
+                atomic_write_text(out / f"{obj}_{row_label(m, ch)}_s{s}.json", json.dumps(result, indent=1) + "\n")
 
 
 def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:
@@ -363,8 +365,8 @@ def plot_curves(table2, path: Path) -> None:
     ax.set_title("Ball positions from the skin")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    atomic_write(path, lambda fh: fig.savefig(fh, dpi=120, format=Path(path).suffix[1:] or "png"))
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -23,6 +23,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from tacgnn.config import ConfigError
+from tacgnn.files import atomic_write
+from tacgnn.user_errors import run_script
+
 Scalars = dict[str, dict[int, tuple[float, float]]]
 
 
@@ -126,11 +130,11 @@ def main() -> None:
     for item in args.runs:
         label, _, paths = item.partition("=")
         if not paths:
-            raise SystemExit(f"expected LABEL=RUN_DIR[,RUN_DIR...], got {item!r}")
+            raise ConfigError(f"expected LABEL=RUN_DIR[,RUN_DIR...], got {item!r}")
         runs = [Path(p) for p in paths.split(",")]
         per_iteration = {steps_per_iteration(run) for run in runs}
         if len(per_iteration) > 1:
-            raise SystemExit(f"{label}: the runs differ in env steps per iteration {sorted(per_iteration)}")
+            raise ConfigError(f"{label}: the runs differ in env steps per iteration {sorted(per_iteration)}")
         scalars = [run_scalars(run) for run in runs]
         it, values, wall = common_iterations([success_curve(sc) for sc in scalars], args.iterations)
         env_steps = it * per_iteration.pop() / 1e6
@@ -155,9 +159,9 @@ def main() -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.out, dpi=120)
+    atomic_write(args.out, lambda fh: fig.savefig(fh, dpi=120, format=Path(args.out).suffix[1:] or "png"))
     print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

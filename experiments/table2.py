@@ -25,6 +25,7 @@ from tacgnn.perception.evaluation import evaluate, patch_loss
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import train
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import run_script
 
 PAPER = {"mlp": (0.230, 0.250), "cnn": (0.114, 27.76), "gcn": (0.130, 0.152), "tacgnn-32": (0.077, 0.096),
          "tacgnn-64": (0.098, 0.085)}  # model: (train cm, test cm)
@@ -80,4 +81,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

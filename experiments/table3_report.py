@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from tacgnn.learning.evaluate import seed_bootstrap_difference
+from tacgnn.user_errors import run_script
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = {  # model: success % Simple / Middle / Hard, mean steps
@@ -85,4 +86,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -30,13 +30,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from tacgnn.config import from_dict
+from tacgnn.config import ConfigError, from_dict
 from tacgnn.datasets.store import read_manifest
+from tacgnn.files import atomic_write_text
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.sequence_checkpoint import load_sequence_model
 from tacgnn.perception.sequence_evaluation import matched_ball_errors, prediction_metrics, sequence_predictions
 from tacgnn.perception.sequences import SequenceData, load_sequences, split_by_episode
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import run_script
 
 STEP_BINS = [6, 25, 50, 75, 100, 125, 150, 175, 200]
 LENGTH_BINS = [0, 50, 75, 100, 125, 150, 199, 10_000]
@@ -142,7 +144,7 @@ def main() -> None:
         other, other_cfg, _ = load_sequence_model(Path(args.compare) / "checkpoint.pt")
         if (other_cfg.seed, other_cfg.train_fraction, other_cfg.max_frames) != (cfg.seed, cfg.train_fraction,
                                                                                  cfg.max_frames):
-            raise SystemExit(f"--compare {args.compare}: another split than {args.run}")
+            raise ConfigError(f"--compare {args.compare}: another split than {args.run}")
         other_se = matched_ball_errors(sequence_predictions(other, other_cfg, test), test, other_cfg.match_balls)[0]
         report["compare"] = args.compare
     total = float(ep_se.sum())
@@ -185,10 +187,10 @@ def main() -> None:
     report["worst_episodes"] = worst
     report["provenance"] = provenance({"perception": ckpt}, cfg.seed, {"dataset": args.dataset})
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(report, indent=1))
+    atomic_write_text(args.out, json.dumps(report, indent=1))
     print(json.dumps({k: v for k, v in report.items() if k != "provenance"}, indent=1))
 
 
 if __name__ == "__main__":
     np.set_printoptions(precision=3)
-    main()
+    raise SystemExit(run_script(main))

@@ -23,9 +23,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from tacgnn.config import from_dict
+from tacgnn.config import ConfigError, from_dict
 from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
 from tacgnn.datasets.store import load, read_manifest
+from tacgnn.user_errors import run_script
 
 
 def main() -> None:
@@ -42,7 +43,7 @@ def main() -> None:
     meta = read_manifest(args.like)["metadata"]
     base = from_dict(BaodingDataConfig, meta["config"])
     if args.seed == base.seed:
-        raise SystemExit(f"--seed {args.seed}: {args.like} was made with this seed; its episodes would repeat")
+        raise ConfigError(f"--seed {args.seed}: {args.like} was made with this seed; its episodes would repeat")
     cfg = replace(base, seed=args.seed, samples=args.samples, shard_size=args.shard_size, num_envs=args.envs,
                   min_episode_steps=args.min_steps)
     policy = None
@@ -62,4 +63,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -50,6 +50,7 @@ import torch
 
 from tacgnn.config import from_dict, to_dict
 from tacgnn.datasets.store import read_manifest
+from tacgnn.files import atomic_write, atomic_write_text
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.evaluation import patch_taxels, without_taxels
 from tacgnn.perception.sequence_checkpoint import load_sequence_checkpoint, load_sequence_model
@@ -61,6 +62,7 @@ from tacgnn.perception.sequence_evaluation import (
 )
 from tacgnn.perception.sequences import SequenceData, load_sequences, split_by_episode
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import run_script
 
 BINS = [0, 1, 2, 3, 4, 6, 8, 12]
 PAPER_TACGNN32_TEST_CM = 0.096
@@ -175,7 +177,7 @@ def main() -> None:
               + (f", {args.lose_patch} lost x{results[name][args.lose_patch + '_lost_rmse_ratio']:.2f}"
                  if args.lose_patch else ""), flush=True)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"dataset": args.dataset, "touched_within_cm": 3.0,
+    atomic_write_text(args.out, json.dumps({"dataset": args.dataset, "touched_within_cm": 3.0,
                                           "paper_tacgnn32_test_cm": PAPER_TACGNN32_TEST_CM, "runs": results},
                                          indent=1))
     print(f"wrote {args.out}")
@@ -208,8 +210,8 @@ def plot(results: dict, path: str) -> None:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
+    atomic_write(path, lambda fh: fig.savefig(fh, dpi=130, format=Path(path).suffix[1:] or "png"))
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -28,9 +27,11 @@ import numpy as np
 
 from tacgnn.config import override, parse_overrides
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.files import atomic_write_text
 from tacgnn.learning.policy import load_perception, load_policy
 from tacgnn.provenance import provenance
 from tacgnn.sim.tactile import TactileModel
+from tacgnn.user_errors import run_script
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
+        atomic_write_text(args.out, text)
     return 0
 
 
@@ -178,4 +179,4 @@ def count_spawn_overlaps(cfg: BaodingConfig, resets: int) -> dict:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

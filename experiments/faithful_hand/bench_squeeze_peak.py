@@ -14,6 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from tacgnn.envs.baoding import BaodingConfig, RewardConfig
+from tacgnn.user_errors import run_script
 
 
 def main() -> None:
@@ -39,4 +40,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

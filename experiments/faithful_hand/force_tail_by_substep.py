@@ -14,21 +14,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
+from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.files import atomic_write_text
 from tacgnn.learning.policy import load_policy
 from tacgnn.provenance import provenance
+from tacgnn.user_errors import run_script
 
 
 def tail(path: str, episodes: int) -> dict:
     policy, cfg = load_policy(path)
     if cfg.obs_mode != "groundtruth":
-        raise SystemExit(f"{path}: a ground-truth policy is needed (obs_mode {cfg.obs_mode})")
+        raise ConfigError(f"{path}: a ground-truth policy is needed (obs_mode {cfg.obs_mode})")
     env = BaodingEnv(replace(cfg, num_envs=episodes))
     step_one = env.sim.step
     forces: list[np.ndarray] = []  # per substep: (N, 8) forces, 0 for envs whose episode ended
@@ -68,9 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.out:
         out = {"rows": rows, "provenance": provenance({f"policy_{i}": p for i, p in enumerate(args.policies)}, 123,
                                                        {"episodes": args.episodes})}
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        atomic_write_text(args.out, json.dumps(out, indent=1))
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

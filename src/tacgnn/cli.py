@@ -39,6 +39,7 @@ import yaml
 
 from tacgnn.config import ConfigError, load_yaml, override, parse_overrides, to_dict
 from tacgnn.learning.policy import SHIPPED_POLICY
+from tacgnn.user_errors import error_line, is_user_error
 
 
 def _config(cls, args, **given):
@@ -528,26 +529,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_real_hand_arguments(p)
     p.set_defaults(fn=cmd_real_hand)
     return parser
-
-
-# Errors that mean the user's input is wrong (a file, key or value), reported as one line with
-# exit code 2. Matched by class name so that the CLI need not import the modules that define
-# them (they load torch and MuJoCo); OSError covers missing, unreadable and unwritable files.
-USER_ERRORS = ("ConfigError", "DatasetError", "CheckpointError", "CalibrationError", "RecordingError",
-               "RenderingUnavailable", "FileProblem")
-
-
-def is_user_error(err: BaseException) -> bool:
-    return isinstance(err, (ConfigError, OSError)) or any(c.__name__ in USER_ERRORS for c in type(err).__mro__)
-
-
-def error_line(err: BaseException) -> str:
-    """One line for a user error, naming the file when the exception knows it."""
-    text = "; ".join(line.strip() for line in str(err).splitlines() if line.strip()) or type(err).__name__
-    filename = getattr(err, "filename", None)
-    if isinstance(err, OSError) and filename and (err.strerror or str(filename) not in text):
-        text = f"{filename}: {err.strerror or text}"
-    return text
 
 
 def main(argv: list[str] | None = None) -> int:
