@@ -104,7 +104,7 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
             readings = env.tactile_readings()[0]
             controller.reset(env.joint_pos[0].copy())
         else:
-            readings = info["tactile"][0]
+            readings = env.skin_to_host(info["tactile"][:1])[0]
     ms = 1e3 * np.asarray(ticks[10:])  # the first ticks pay for lazy initialisation
     return {"episodes": episodes, "success_rate": wins / episodes, "seconds": round(time.monotonic() - started, 1),
             "tick_compute_ms": {"p50": round(float(np.percentile(ms, 50)), 3),

@@ -13,8 +13,9 @@ of a scripted finger wave after a warm-up, and times:
   as the env drives the engine: the engine's host mirrors (the rows the host changed up
   before each engine call, the arrays the host reads down after it; on the CPU the mirrors
   are switched on for this count) and the skin's traffic (`DeviceTactile.host_bytes`: inputs staged up,
-  readings and taxel positions copied down). A line per Warp row splits it, beside the
-  same count with the skin fed the host mirrors instead of the device arrays.
+  readings and taxel positions copied down for a consumer that needs numpy: none in this loop, where
+  they stay on the device). A line per Warp row splits it, beside the same count with the skin fed
+  the host mirrors instead of the device arrays (its readings then come back as numpy).
 
 On the CPU MuJoCo Warp is a development target (one launch per kernel, no threads); its
 speed is on a GPU, where this script runs unchanged with --device cuda:0. The first Warp
@@ -179,7 +180,7 @@ def main() -> None:
                          for k in keys), flush=True)
     for envs, (device_fed, host_fed) in traffic:
         print(f"warp, {envs} envs, host<->device bytes per env step: engine mirrors {device_fed['engine']:,.0f}, "
-              f"skin {device_fed['skin']:,.0f} (fed the device arrays; its readings down), "
+              f"skin {device_fed['skin']:,.0f} (fed the device arrays, its readings left there), "
               f"total {sum(device_fed.values()):,.0f}; with the skin fed the host mirrors: "
               f"skin {host_fed['skin']:,.0f}, total {sum(host_fed.values()):,.0f}", flush=True)
 

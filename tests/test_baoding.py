@@ -8,6 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 from tacgnn.config import ConfigError, override
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, BaodingSingleEnv, RandomizationConfig
+from tacgnn.envs.observation import BALL_COLUMNS
 from tacgnn.envs.scripted import FingerWave
 
 
@@ -29,7 +30,7 @@ def test_observation_sizes(mode, dim):
     obs, *_ = env.step(hold(env))
     assert np.isfinite(obs).all()
     if mode == "no_perception":
-        assert not obs[:, 32:38].any()
+        assert not obs[:, BALL_COLUMNS].any()
 
 
 def test_tactile_observation_is_the_raw_skin():
@@ -274,7 +275,7 @@ def test_perceived_balls_keep_their_identity(track):
     obs, _ = env.reset(seed=0)
     wrong = []
     for _ in range(30):
-        wrong.append(np.abs(obs[:, 32:38] - env.ball_positions().reshape(-1, 6)).max(1) > 1e-6)
+        wrong.append(np.abs(obs[:, BALL_COLUMNS] - env.ball_positions().reshape(-1, 6)).max(1) > 1e-6)
         obs, *_ = env.step(np.tile(env.last_action[:1], (8, 1)))
     wrong = np.array(wrong)
     if track:

@@ -7,7 +7,7 @@ import pytest
 
 from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RewardConfig
-from tacgnn.envs.observation import canonical_ball_order
+from tacgnn.envs.observation import BALL_COLUMNS, canonical_ball_order
 from tacgnn.learning.evaluate import _turns
 
 
@@ -86,7 +86,7 @@ def test_default_order_keeps_ball_zero_first():
     _swap_balls(env)
     swapped = env._observe(slice(None), None, None)
     np.testing.assert_allclose(swapped[:, 32:35], obs[:, 35:38], atol=1e-6)
-    np.testing.assert_allclose(swapped[:, 32:38], env.ball_positions().reshape(4, 6), atol=1e-6)
+    np.testing.assert_allclose(swapped[:, BALL_COLUMNS], env.ball_positions().reshape(4, 6), atol=1e-6)
 
 
 def test_canonical_order_puts_the_pair_in_one_half_turn():

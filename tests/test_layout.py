@@ -5,8 +5,8 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "tacgnn"
-# Top-level helpers (configs, files, provenance, runtime settings) sit under everything.
-LAYERS = {"config": 0, "files": 0, "provenance": 0, "runtime": 0, "__init__": 0,
+# Top-level helpers (configs, files, provenance, runtime settings, user errors) sit under everything.
+LAYERS = {"config": 0, "files": 0, "provenance": 0, "runtime": 0, "user_errors": 0, "__init__": 0,
           "hand": 1, "sim": 2, "envs": 3, "datasets": 4, "perception": 5, "learning": 6,
           "tools": 7, "real": 7, "cli": 8}
 

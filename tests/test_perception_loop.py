@@ -8,6 +8,7 @@ import torch
 
 from tacgnn.config import ConfigError, to_dict
 from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.envs.observation import BALL_COLUMNS
 from tacgnn.hand.skin_layout import default_skin
 from tacgnn.learning.checkpoint import load_checkpoint
 from tacgnn.learning.config import PPOConfig
@@ -188,7 +189,7 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
 
     def spying_load_policy(path):
         policy, cfg = load_policy(path)
-        return (lambda obs: seen.append(obs[:, 32:38].copy()) or policy(obs)), cfg
+        return (lambda obs: seen.append(obs[:, BALL_COLUMNS].copy()) or policy(obs)), cfg
 
     call = OnlinePerception.__call__
     monkeypatch.setattr(evaluation, "load_policy", spying_load_policy)

@@ -12,6 +12,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.observation import BALL_COLUMNS
 from tacgnn.files import FileProblem
 from tacgnn.learning.checkpoint import CheckpointError, list_checkpoints, load_checkpoint
 from tacgnn.learning.config import PPOConfig
@@ -166,8 +167,8 @@ def test_privileged_critic_reads_true_balls_and_resumes_exactly(tmp_path):
     env = RslBaodingEnv(env_cfg, privileged_critic=True)
     obs = env.step(torch.zeros(env.num_envs, 16))[0]
     truth = env.env.ball_positions().reshape(-1, 6)
-    np.testing.assert_allclose(obs["critic"][:, 32:38].numpy(), truth, atol=1e-6)
-    assert np.abs(obs["policy"][:, 32:38].numpy() - truth).max() > 1e-3
+    np.testing.assert_allclose(obs["critic"][:, BALL_COLUMNS].numpy(), truth, atol=1e-6)
+    assert np.abs(obs["policy"][:, BALL_COLUMNS].numpy() - truth).max() > 1e-3
     torch.testing.assert_close(obs["critic"][:, :32], obs["policy"][:, :32])  # same proprioception
     cfg = lambda n: replace(ppo(n), privileged_critic=True, save_interval=2)  # noqa: E731
     train(env_cfg, cfg(4), tmp_path / "straight")

@@ -14,7 +14,7 @@ import torch
 from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv, ordered_balls
-from tacgnn.envs.observation import action_to_target, assemble, target_to_action, track_ball_identities
+from tacgnn.envs.observation import BALL_COLUMNS, action_to_target, assemble, target_to_action, track_ball_identities
 from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig
 
@@ -113,7 +113,7 @@ def test_the_observation_layout():
     assert obs.shape == (1, 54) and obs.dtype == np.float32
     np.testing.assert_allclose(obs[0, :16], np.linspace(-1, 1, 16), atol=1e-6)
     np.testing.assert_allclose(obs[0, 16:32], 0.2 * qd[0], atol=1e-6)
-    np.testing.assert_array_equal(obs[0, 32:38], balls[0])
+    np.testing.assert_array_equal(obs[0, BALL_COLUMNS], balls[0])
     np.testing.assert_array_equal(obs[0, 38:], last[0])
     np.testing.assert_array_equal(action_to_target(np.array([-2.0, -1.0, 0.0, 1.0, 2.0]), lo[:5], hi[:5]),
                                   [-1.0, -1.0, 1.0, 3.0, 3.0])

@@ -7,6 +7,7 @@ import torch
 
 from tacgnn.config import ConfigError, to_dict
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.observation import BALL_COLUMNS
 from tacgnn.learning.checkpoint import frames_path, load_checkpoint
 from tacgnn.learning.online_perception import OnlinePerceptionConfig
 from tacgnn.learning.online_temporal import TemporalOnlinePerception
@@ -74,7 +75,7 @@ def test_state_is_per_env_and_starts_fresh_with_each_episode():
         r, p, j, a = inputs[0]  # the all-env call of this step; a second call reads the reset frames
         for i in range(3):
             history[i].append((r[i], p[i], j[i], a[i]))
-        outputs.append(info["final_obs"][:, 32:38] if "final_obs" in info else obs[:, 32:38])
+        outputs.append(info["final_obs"][:, BALL_COLUMNS] if "final_obs" in info else obs[:, BALL_COLUMNS])
         if len(inputs) > 1:  # envs reset at steps 5: the state of each is fresh again
             assert (env.episode_steps == 0).all()
             assert torch.equal(perception.state, perception.model.initial_state(3))

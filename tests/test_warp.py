@@ -17,8 +17,11 @@ pytest.importorskip("mujoco_warp")
 import mujoco  # noqa: E402
 import mujoco.batch  # noqa: E402
 
-from tacgnn.config import ConfigError  # noqa: E402
+from tacgnn.config import ConfigError, to_dict  # noqa: E402
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RandomizationConfig  # noqa: E402
+from tacgnn.envs.observation import BALL_COLUMNS  # noqa: E402
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig  # noqa: E402
+from tacgnn.perception.models import PerceptionModelConfig  # noqa: E402
 from tacgnn.sim.backend import make_sim  # noqa: E402
 from tacgnn.sim.scene import SimConfig  # noqa: E402
 from tacgnn.sim.tactile import TactileModel, skin_sensor_columns  # noqa: E402
@@ -90,7 +93,8 @@ def test_skin_on_the_device_equals_the_compiled_skin(pair):
 def test_skin_fed_by_the_engine_reads_the_device_not_the_host(pair):
     """`engine_readings` reads the Warp engine's device arrays: on a sim with host mirrors
     (as on a GPU) it gives the compiled skin's readings on the engine's contacts even with
-    the mirrors overwritten, keeps them on the device, and copies only the readings to the host."""
+    the mirrors overwritten, and leaves them on the device: nothing crosses to the host until
+    a consumer asks for numpy (`to_host`)."""
     c, w = pair
     n, t = CFG.num_envs, CFG.skin.num_taxels
     sim = WarpSim(c.model, n, mirror=True)
@@ -103,23 +107,25 @@ def test_skin_fed_by_the_engine_reads_the_device_not_the_host(pair):
     sim.sensordata[:], sim.xpos[:], sim.xmat[:] = 0.0, np.nan, np.nan  # the host mirrors, not the engine
     skin = DeviceTactile(CFG.skin, c.model)
     out = skin.engine_readings(sim, slice(None), np.random.default_rng(5))
-    assert np.abs(out - ref).max() <= 1e-5  # N
+    assert isinstance(out, torch.Tensor) and out.device == torch.device("cpu")  # the engine's device here
+    assert skin.host_bytes == 0  # no input went up, no reading came down
+    assert np.abs(skin.to_host(out) - ref).max() <= 1e-5  # N
+    assert skin.host_bytes == n * t * 4  # asked for: the readings down
     assert isinstance(skin.device_readings, torch.Tensor) and skin.device_readings.shape == (n, t)
-    np.testing.assert_array_equal(skin.device_readings.numpy(), out)
-    assert skin.host_bytes == n * t * 4  # the readings down; no input went up
+    assert torch.equal(skin.device_readings, out)
     # some rows (a reset): those rows replaced on the device, the others kept
     before = skin.device_readings
     rows = np.array([2, 0])
     out = skin.engine_readings(sim, rows, None)
-    assert np.abs(out - ref_clean[rows]).max() <= 1e-5 and out.shape == (2, t)
+    assert np.abs(out.numpy() - ref_clean[rows]).max() <= 1e-5 and out.shape == (2, t)
     np.testing.assert_array_equal(skin.device_readings[[1, 3]].numpy(), before[[1, 3]].numpy())
-    np.testing.assert_array_equal(skin.device_readings[rows].numpy(), out)
-    np.testing.assert_allclose(skin.engine_positions(sim, rows), ref_pos[rows], atol=1e-6)
+    np.testing.assert_array_equal(skin.device_readings[rows].numpy(), out.numpy())
+    np.testing.assert_allclose(skin.engine_positions(sim, rows).numpy(), ref_pos[rows], atol=1e-6)
 
 
 def test_warp_env_steps_with_the_skin_on_the_device():
-    """The env on Warp takes its skin from the device arrays: per step, the skin's only host
-    traffic is the readings' copy, and it equals the readings kept on the device."""
+    """The env on Warp takes its skin from the device arrays and hands it out there: a step
+    copies no skin array to the host, and what it hands out is the compiled skin's reading."""
     cfg = on_warp(replace(CFG, num_envs=2, obs_mode="tactile"))
     env = BaodingEnv(cfg)
     env.reset(seed=0)
@@ -128,13 +134,49 @@ def test_warp_env_steps_with_the_skin_on_the_device():
         before, rng = env.tactile.host_bytes, copy.deepcopy(env._rng)  # the skin draws its noise seed first
         obs, _, terminated, truncated, info = env.step(env.last_action.copy())
         assert not (terminated | truncated).any()
-        assert env.tactile.host_bytes - before == 2 * (t * 4 + t * 3 * 4)  # readings and taxel positions, down
+        assert env.tactile.host_bytes == before  # readings and taxel positions stay on the device
+        assert isinstance(info["tactile"], torch.Tensor) and isinstance(obs["taxel_pos"], torch.Tensor)
         if (info["tactile"] > 0).sum() >= 4:
             break
-    np.testing.assert_array_equal(info["tactile"], env.tactile.device_readings.numpy())
-    np.testing.assert_array_equal(obs["taxel_pos"], env.tactile.device_positions.numpy())
+    assert torch.equal(info["tactile"], env.tactile.device_readings)
+    assert torch.equal(obs["taxel_pos"], env.tactile.device_positions)
     ref = compiled.readings(env.sim.sensordata, env.sim.xpos, env.sim.xmat, rng)
-    assert (ref > 0).sum() >= 4 and np.abs(info["tactile"] - ref).max() <= 1e-5
+    readings = env.skin_to_host(info["tactile"])  # a consumer that needs numpy: counted
+    assert env.tactile.host_bytes - before == t * 4 * 2
+    assert (ref > 0).sum() >= 4 and np.abs(readings - ref).max() <= 1e-5
+    np.testing.assert_allclose(env.skin_to_host(obs["taxel_pos"]), compiled.positions(env.sim.xpos, env.sim.xmat),
+                               atol=1e-6)
+
+
+def test_perception_in_the_loop_reads_the_skin_where_the_engine_leaves_it():
+    """'perceived' on Warp: the perception takes the skin's device tensors (no skin array comes
+    down in the step) and sees what it sees on the C engine from the same state; its recorded
+    frames are the C engine's too."""
+    cfg = replace(CFG, obs_mode="perceived")
+    skin = to_dict(cfg.skin)
+    perceptions = [OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), buffer_size=64),
+                                    skin, seed=0) for _ in range(2)]
+    c, w = BaodingEnv(cfg, perception=perceptions[0]), BaodingEnv(on_warp(cfg), perception=perceptions[1])
+    c.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        c.step(np.clip(c.last_action + 0.05 * rng.standard_normal(c.last_action.shape), -1, 1))
+    copy_env(c, w)
+    w.perceived_balls[:] = c.perceived_balls
+    action = np.clip(c.last_action + 0.3 * rng.standard_normal(c.last_action.shape), -1, 1)
+    obs_c, _, term, trunc, info_c = c.step(action)
+    before = w.tactile.host_bytes
+    obs_w, _, _, _, info_w = w.step(action)
+    assert w.tactile.host_bytes == before  # readings and taxel positions stayed on the device
+    assert isinstance(info_w["tactile"], torch.Tensor) and isinstance(info_c["tactile"], np.ndarray)
+    assert not (term | trunc).any() and (info_c["tactile"] > 0).sum() >= CFG.num_envs
+    balls = BALL_COLUMNS  # the perceived ball positions in the observation
+    assert np.abs(obs_w[:, balls] - obs_c[:, balls]).max() < 1e-4  # m
+    for p, info in zip(perceptions, (info_c, info_w)):
+        p.record(info)
+    assert perceptions[0].size == perceptions[1].size == CFG.num_envs
+    assert (perceptions[1].readings - perceptions[0].readings).abs().max() <= 1e-5
+    assert (perceptions[1].positions - perceptions[0].positions).abs().max() <= 1e-4  # cm
 
 
 def test_one_control_step_matches_the_c_engine(pair):
@@ -177,7 +219,8 @@ def test_control_steps_match_over_many_states():
         seed = int(rng.integers(1 << 30))
         ref = c.tactile.readings(w.sim.sensordata, w.sim.xpos, w.sim.xmat, np.random.default_rng(seed))
         pressed += (ref > 0).sum()
-        skin_gap.append(np.abs(w.tactile.engine_readings(w.sim, slice(None), np.random.default_rng(seed)) - ref).max())
+        skin_gap.append(np.abs(w.tactile.engine_readings(w.sim, slice(None), np.random.default_rng(seed)).numpy()
+                               - ref).max())
     assert compared >= 100
     assert max(joint_gap) < 1e-4 and max(ball_gap) < 1e-4, (joint_gap, ball_gap)
     assert pressed >= 100 and max(skin_gap) <= 1e-5, skin_gap

@@ -118,7 +118,7 @@ def _demo_scripted(args) -> int:
     start = time.perf_counter()
     for _ in range(args.steps):
         obs, _, terminated, truncated, info = env.step(controller(obs))
-        active.append((info["tactile"] > 0).sum(1).mean())
+        active.append((env.skin_to_host(info["tactile"]) > 0).sum(1).mean())
         done = terminated | truncated
         episodes += int(done.sum())
         falls += int(info["fall"].sum())

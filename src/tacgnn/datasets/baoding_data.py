@@ -128,8 +128,8 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
         keep &= (np.arange(cfg.num_envs) + step) % cfg.keep_every == 0
         if keep.any():
             frame = {
-                "tactile": info["tactile"][keep],
-                "taxel_pos": info["taxel_pos"][keep],
+                "tactile": env.skin_to_host(info["tactile"])[keep],
+                "taxel_pos": env.skin_to_host(info["taxel_pos"])[keep],
                 "joint_pos": env.joint_low + (joints[keep, :16] + 1) * 0.5 * (env.joint_high - env.joint_low),
                 "joint_vel": joints[keep, 16:32] / 0.2,
                 "ball_pos": info["ball_pos"][keep],

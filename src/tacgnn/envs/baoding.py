@@ -42,7 +42,7 @@ from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
 from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
 from tacgnn.hand.allegro import FINGER_RANGES, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
-from tacgnn.sim.backend import skin_positions, skin_readings
+from tacgnn.sim.backend import SkinArray, skin_positions, skin_readings
 from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
 
 log = logging.getLogger(__name__)
@@ -238,7 +238,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     ``info`` also holds per-env arrays: ``reward_terms``, ``angle_deg``, ``success``,
     ``fall``, ``timeout``, ``diverged``, ``ball_pos`` (N, 2, 3), with the skin on
     ``tactile`` (N, T), and in the 'tactile' and 'perceived' modes ``taxel_pos``
-    (N, T, 3), all of the step just taken (before any reset).
+    (N, T, 3), all of the step just taken (before any reset). The skin's arrays (there and
+    in the 'tactile' observation) are numpy on the C engine and torch tensors on the Warp
+    engine's device, which they never leave unless a consumer asks (`skin_to_host`).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_fps": 50}
@@ -319,7 +321,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         """(N, 2, 3) ball centres relative to the hand origin (world axes, m)."""
         return self.sim.xpos[:, self.ball_body]  # a copy (fancy index)
 
-    def _object_obs(self, ids: EnvIds, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> np.ndarray:
+    def _object_obs(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None) -> np.ndarray:
         mode = self.config.obs_mode
         balls = self.ball_positions()[ids].reshape(-1, 6)
         if mode == "groundtruth":
@@ -345,7 +347,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         """(N, 6) ball positions in the config's `ball_order`."""
         return ordered_balls(balls, self.config)
 
-    def _observe(self, ids: EnvIds, tactile: np.ndarray | None, taxel_pos: np.ndarray | None) -> Any:
+    def _observe(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None) -> Any:
         q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
         if self.config.obs_mode == "tactile":
             proprio = observation.proprioception(q, qd, lo, hi)
@@ -361,7 +363,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
                                     self.joint_high)
 
-    def _skin(self, ids: EnvIds) -> tuple[np.ndarray | None, np.ndarray | None]:
+    def _skin(self, ids: EnvIds) -> tuple[SkinArray | None, SkinArray | None]:
         """Readings of envs `ids`, and taxel positions if the observation needs them.
 
         Other modes get positions on demand from `taxel_positions()` (same instant,
@@ -716,7 +718,10 @@ def _row(obs, i):
 
 
 def _copy_obs(obs):
-    return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+    """A copy of an observation (the 'tactile' mode's dict may hold the Warp skin's tensors)."""
+    if isinstance(obs, dict):
+        return {k: v.copy() if isinstance(v, np.ndarray) else v.clone() for k, v in obs.items()}
+    return obs.copy()
 
 
 def _assign_obs(obs, ids, new) -> None:

@@ -4,7 +4,8 @@ A task file (e.g. `baoding.py`) adds its objects to the scene, and implements re
 observation, reward and termination on top of what this base gives:
 
 * `sim`: the `BatchedSim` of `num_envs` envs,
-* `tactile`: the skin model, `tactile_readings()` and `taxel_positions()` for all envs,
+* `tactile`: the skin model, `tactile_readings()` and `taxel_positions()` for all envs (numpy;
+  `skin_to_host` for the skin arrays a step hands out, tensors on the Warp engine's device),
 * `action_to_ctrl`: the paper's action mapping, [-1, 1] onto each joint's range,
 * joint position/velocity views and the physics substeps of one control step.
 """
@@ -17,7 +18,7 @@ import numpy as np
 from tacgnn.envs import observation
 from tacgnn.hand.allegro import HandConfig
 from tacgnn.hand.skin_layout import SkinLayout
-from tacgnn.sim.backend import make_sim, make_tactile, skin_positions, skin_readings
+from tacgnn.sim.backend import SkinArray, make_sim, make_tactile, skin_positions, skin_readings, skin_to_host
 from tacgnn.sim.scene import SimConfig, compile_with_skin
 
 NUM_JOINTS = 16
@@ -62,9 +63,14 @@ class HandEnvBase:
 
     # --- the skin ----------------------------------------------------------------------
     def tactile_readings(self, noisy: bool = True) -> np.ndarray:
-        """(N, T) taxel forces (N) at the start of the last physics substep."""
-        return skin_readings(self.tactile, self.sim, slice(None), self._rng if noisy else None)
+        """(N, T) taxel forces (N) at the start of the last physics substep, as numpy."""
+        return self.skin_to_host(skin_readings(self.tactile, self.sim, slice(None), self._rng if noisy else None))
 
     def taxel_positions(self) -> np.ndarray:
-        """(N, T, 3) world positions (m) of all taxels, same instant as the readings."""
-        return skin_positions(self.tactile, self.sim, slice(None))
+        """(N, T, 3) world positions (m) of all taxels, same instant as the readings, as numpy."""
+        return self.skin_to_host(skin_positions(self.tactile, self.sim, slice(None)))
+
+    def skin_to_host(self, array: SkinArray) -> np.ndarray:
+        """A skin array of this env's (``info['tactile']``, ``info['taxel_pos']``: numpy on the C
+        engine, a tensor on the Warp engine's device) as numpy."""
+        return skin_to_host(self.tactile, array)

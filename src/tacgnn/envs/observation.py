@@ -19,13 +19,17 @@ step to the next.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+import torch
 
 JOINT_VEL_SCALE = 0.2
 """The paper's scale of the joint velocities in the observation."""
 BALL_VALUES = 6
 """Two balls, (x, y, z) each."""
+BALL_COLUMNS = slice(32, 32 + BALL_VALUES)
+"""Where the observation holds the balls: after the 16 joint angles and the 16 joint velocities."""
 
 
 def action_to_target(action: np.ndarray, low: np.ndarray, high: np.ndarray,
@@ -55,21 +59,24 @@ def assemble(joint_pos: np.ndarray, joint_vel: np.ndarray, objects: np.ndarray, 
                           axis=-1).astype(np.float32)
 
 
-def perceive_balls(perception: Callable[..., np.ndarray], tactile: np.ndarray, taxel_pos: np.ndarray,
+def perceive_balls(perception: Callable[..., np.ndarray], tactile: Any, taxel_pos: Any,
                    joint_pos: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
     """(N, 6) ball positions a perception model reads off the skin, identities tracked.
 
     Args:
         perception: ``f(tactile, taxel_pos)``, or ``f(tactile, taxel_pos, joint_pos)`` for a
             model with a ``joint_inputs`` attribute (it also reads the hand's pose).
-        tactile: (N, T) taxel readings (N).
-        taxel_pos: (N, T, 3) taxel positions (m) at the instant of the readings.
+        tactile: (N, T) taxel readings (N): numpy, or a torch tensor on the device of the Warp
+            engine's skin, which the perception takes as it is (no copy to the host).
+        taxel_pos: (N, T, 3) taxel positions (m) at the instant of the readings; the same kind.
         joint_pos: (N, 16) joint angles (rad), for models that read them.
         previous: (N, 6) the positions given one step before (after tracking), or None to
             take the model's order as it is.
     """
-    tactile = np.asarray(tactile, dtype=np.float32)
-    taxel_pos = np.asarray(taxel_pos, dtype=np.float32)
+    if not isinstance(tactile, torch.Tensor):
+        tactile = np.asarray(tactile, dtype=np.float32)
+    if not isinstance(taxel_pos, torch.Tensor):
+        taxel_pos = np.asarray(taxel_pos, dtype=np.float32)
     if getattr(perception, "joint_inputs", 0):
         pred = perception(tactile, taxel_pos, joint_pos)
     else:

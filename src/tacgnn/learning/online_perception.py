@@ -32,6 +32,19 @@ from tacgnn.perception.objectives import Objective
 from tacgnn.perception.rest_positions import rest_positions_cm
 from tacgnn.perception.training import backward_checked
 
+InputArray = np.ndarray | torch.Tensor
+"""A skin array as the env hands it out: numpy (C engine) or a tensor on the Warp engine's device."""
+
+
+def model_input(array: InputArray, scale: float = 1.0) -> torch.Tensor:
+    """`array` x `scale` as a float32 tensor on the CPU, where the perception runs: numpy without a
+    copy where it can (scaled in its own precision, as before tensors came in), a tensor from any
+    device (on the CPU, as it is)."""
+    if isinstance(array, torch.Tensor):
+        t = array.to("cpu", torch.float32)
+        return t * scale if scale != 1.0 else t
+    return torch.from_numpy(np.ascontiguousarray(array * scale if scale != 1.0 else array, np.float32))
+
 
 @dataclass(frozen=True)
 class OnlinePerceptionConfig:
@@ -147,15 +160,15 @@ class OnlinePerception:
         self._anchor_batch = round(cfg.batch_size * cfg.anchor_share / (1 - cfg.anchor_share))
 
     @torch.inference_mode()
-    def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, readings: InputArray, taxel_pos: InputArray, joints: np.ndarray | None = None) -> np.ndarray:
         """(N, 6) ball positions in metres from (N, T) readings, (N, T, 3) positions in metres
-        and, for a model with `joint_inputs`, (N, 16) joint angles in rad."""
+        and, for a model with `joint_inputs`, (N, 16) joint angles in rad; numpy, or tensors as the
+        Warp skin leaves them on its device."""
         self._to_eval()
-        inputs = [torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
-                  torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32))]
+        inputs = [model_input(readings), model_input(taxel_pos, 100.0)]
         if joints is not None:
-            inputs.append(torch.from_numpy(np.ascontiguousarray(joints, np.float32)))
-        return self.model(*inputs).numpy().astype(np.float64) / 100.0
+            inputs.append(model_input(joints))
+        return self.model(*inputs).cpu().numpy().astype(np.float64) / 100.0
 
     def _to_eval(self) -> None:
         """Put the model in eval mode to act. Only when it is not: eval() walks every submodule, a
@@ -196,11 +209,12 @@ class OnlinePerception:
         if self.steps_seen % self.cfg.record_every:
             return
         keep = ~(info["fall"] | info["diverged"])
-        r = torch.from_numpy(info["tactile"][keep])
-        p = torch.from_numpy(info["taxel_pos"][keep] * 100.0)
+        rows = torch.from_numpy(np.flatnonzero(keep))
+        r = model_input(info["tactile"])[rows]
+        p = model_input(info["taxel_pos"], 100.0)[rows]
         y = torch.from_numpy((info["ball_pos"][keep].reshape(-1, 6) * 100.0).astype(np.float32))
         idx = (self.head + torch.arange(len(y))) % self.cfg.buffer_size
-        self.readings[idx], self.positions[idx], self.labels[idx] = r, p.float(), y
+        self.readings[idx], self.positions[idx], self.labels[idx] = r, p, y
         if self.joint_inputs:
             self.joints[idx] = torch.from_numpy(info["joint_pos"][keep]).float()
         self.head = int((self.head + len(y)) % self.cfg.buffer_size)

@@ -27,7 +27,7 @@ import torch
 
 from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.hand.skin_layout import SkinLayout
-from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
+from tacgnn.learning.online_perception import InputArray, OnlinePerception, OnlinePerceptionConfig, model_input
 from tacgnn.perception.data import TactileData
 from tacgnn.perception.models.temporal import TemporalModelConfig, TemporalPerception
 from tacgnn.perception.objectives import Objective
@@ -103,7 +103,7 @@ class TemporalOnlinePerception(OnlinePerception):
         self.episode_of_env = torch.arange(env.num_envs, dtype=torch.long)
 
     @torch.inference_mode()
-    def __call__(self, readings: np.ndarray, taxel_pos: np.ndarray, joints: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, readings: InputArray, taxel_pos: InputArray, joints: np.ndarray | None = None) -> np.ndarray:
         """(M, 6) ball positions (m) of the envs this call is about: all N after a step, or the M
         envs just reset (at step 0). Inputs as `OnlinePerception.__call__`, joint angles required."""
         env = self.env
@@ -124,14 +124,11 @@ class TemporalOnlinePerception(OnlinePerception):
                                "are at their episode's start: a temporal perception cannot tell which envs "
                                "these frames belong to")
         self._to_eval()
-        out, new_state = self.filter.step(
-            torch.from_numpy(np.ascontiguousarray(readings, np.float32)),
-            torch.from_numpy(np.ascontiguousarray(taxel_pos * 100.0, np.float32)),
-            torch.from_numpy(np.ascontiguousarray(joints, np.float32)),
-            torch.from_numpy(np.ascontiguousarray(env.last_action[ids], np.float32)), self.state[ids])
+        out, new_state = self.filter.step(model_input(readings), model_input(taxel_pos, 100.0), model_input(joints),
+                                          model_input(env.last_action[ids]), self.state[ids])
         if keep_state:
             self.state[ids] = new_state
-        return out.numpy().astype(np.float64) / 100.0
+        return out.cpu().numpy().astype(np.float64) / 100.0
 
     # --- recording -----------------------------------------------------------------------
     def record(self, info: dict) -> None:
@@ -145,8 +142,9 @@ class TemporalOnlinePerception(OnlinePerception):
         done = info["success"] | info["fall"] | info["timeout"] | info["diverged"]
         ids = np.flatnonzero(~done)
         idx = (self.head + torch.arange(len(ids))) % self.cfg.buffer_size
-        self.readings[idx] = torch.from_numpy(info["tactile"][ids])
-        self.positions[idx] = torch.from_numpy(info["taxel_pos"][ids] * 100.0).float()
+        rows = torch.from_numpy(ids)
+        self.readings[idx] = model_input(info["tactile"])[rows]
+        self.positions[idx] = model_input(info["taxel_pos"], 100.0)[rows]
         self.labels[idx] = torch.from_numpy((info["ball_pos"][ids].reshape(-1, 6) * 100.0).astype(np.float32))
         self.joints[idx] = torch.from_numpy(info["joint_pos"][ids]).float()
         if self.env is not None:  # the command of this step

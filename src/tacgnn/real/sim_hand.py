@@ -259,7 +259,7 @@ class SimHand:
                 if not (terminated[0] or truncated[0]):
                     if time.monotonic() > end:
                         break
-                    publish_state(info["tactile"][0])
+                    publish_state(env.skin_to_host(info["tactile"][:1])[0])
                     continue
                 self.results.append({"episode": episode, "success": bool(info["success"][0]),
                                      "fall": bool(info["fall"][0]), "timeout": bool(info["timeout"][0]),

@@ -3,13 +3,15 @@
 Both give the same batch interface (`BatchedSim`) and the same skin model, so the envs
 run unchanged on either: the C engine on CPU threads with the compiled skin kernel, or
 MuJoCo Warp (CPU or GPU) with the skin in torch on the engine's device, reading the
-engine's device arrays (`skin_readings`, `skin_positions`).
+engine's device arrays and leaving its results there (`skin_readings`, `skin_positions`);
+`skin_to_host` brings them down for a consumer that needs numpy.
 """
 
 from __future__ import annotations
 
 import mujoco
 import numpy as np
+import torch
 
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.sim.batched import BatchedSim
@@ -34,19 +36,32 @@ def make_tactile(layout: SkinLayout, model: mujoco.MjModel, sim: SimConfig):
     return TactileModel(layout, model)
 
 
-def skin_readings(tactile, sim, ids: slice | np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
-    """Readings (len(ids), T) of envs `ids` at the sim's current state, as numpy.
+SkinArray = np.ndarray | torch.Tensor
+"""Skin readings or taxel positions as a backend leaves them: numpy from the C engine's skin, a
+torch tensor on the engine's device from the Warp skin (no copy to the host)."""
 
-    The C engine's skin reads the sim's arrays; the Warp skin reads the engine's device
-    arrays (no inputs staged on the host) and keeps its readings there too.
+
+def skin_readings(tactile, sim, ids: slice | np.ndarray, rng: np.random.Generator | None) -> SkinArray:
+    """Readings (len(ids), T) of envs `ids` at the sim's current state.
+
+    The C engine's skin reads the sim's arrays and returns numpy; the Warp skin reads the
+    engine's device arrays (no inputs staged on the host) and returns a tensor on that device.
     """
     if isinstance(tactile, TactileModel):
         return tactile.readings(sim.sensordata[ids], sim.xpos[ids], sim.xmat[ids], rng)
     return tactile.engine_readings(sim, ids, rng)
 
 
-def skin_positions(tactile, sim, ids: slice | np.ndarray) -> np.ndarray:
-    """World taxel positions (len(ids), T, 3) of envs `ids`, as numpy; see `skin_readings`."""
+def skin_positions(tactile, sim, ids: slice | np.ndarray) -> SkinArray:
+    """World taxel positions (len(ids), T, 3) of envs `ids`; numpy or a device tensor as `skin_readings`."""
     if isinstance(tactile, TactileModel):
         return tactile.positions(sim.xpos[ids], sim.xmat[ids])
     return tactile.engine_positions(sim, ids)
+
+
+def skin_to_host(tactile, array: SkinArray) -> np.ndarray:
+    """A skin array as numpy: the C engine's as it is, a device tensor copied down (counted in the
+    Warp skin's `host_bytes`). For consumers that need the host: datasets, pictures, ROS."""
+    if isinstance(array, np.ndarray):
+        return array
+    return tactile.to_host(array)

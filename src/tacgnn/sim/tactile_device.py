@@ -11,9 +11,9 @@ skipped pairs.
 Input arrays may be numpy (returned as numpy, sharing memory on the CPU) or torch tensors
 (returned as tensors on their device), e.g. `WarpSim.device_views()`. An env on Warp calls
 `engine_readings` / `engine_positions`: they read the engine's device arrays themselves, so
-the skin's inputs are never staged on the host; the results stay on the device
-(`device_readings`, `device_positions`), and the host gets one copy of them for the env's
-numpy interface (observations, ``info['tactile']``), counted in `host_bytes`.
+the skin's inputs are never staged on the host, and return tensors on the device (each env's
+latest also kept as `device_readings`, `device_positions`); a consumer that needs numpy asks
+`to_host`, counted in `host_bytes`.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ class DeviceTactile:
     Shapes (N envs, T taxels):
         readings(sensordata (N, nsensordata), xpos (N, nbody, 3), xmat (N, nbody, 9), rng) -> (N, T) float32
         positions(xpos, xmat) -> (N, T, 3) float32
-        engine_readings(sim, ids, rng) -> (len(ids), T) numpy; device_readings (N, T) tensor
-        engine_positions(sim, ids) -> (len(ids), T, 3) numpy; device_positions (N, T, 3) tensor
+        engine_readings(sim, ids, rng) -> (len(ids), T) tensor; device_readings (N, T) tensor
+        engine_positions(sim, ids) -> (len(ids), T, 3) tensor; device_positions (N, T, 3) tensor
 
     Attributes:
         host_bytes: bytes of host arrays it took in or handed out so far: what a GPU run
@@ -91,7 +91,8 @@ class DeviceTactile:
                 array = array.copy()
         return torch.as_tensor(array, device=self.device)
 
-    def _to_host(self, out: torch.Tensor) -> np.ndarray:
+    def to_host(self, out: torch.Tensor) -> np.ndarray:
+        """A tensor of the skin's as numpy; its bytes count in `host_bytes` (on a GPU, a copy)."""
         self.host_bytes += out.numel() * out.element_size()
         return out.cpu().numpy()
 
@@ -118,25 +119,25 @@ class DeviceTactile:
         return full
 
     def engine_readings(self, sim, ids: slice | np.ndarray = slice(None),
-                        rng: np.random.Generator | None = None) -> np.ndarray:
+                        rng: np.random.Generator | None = None) -> torch.Tensor:
         """Readings (len(ids), T) of envs `ids` of `sim` (a `WarpSim`), read from its device arrays.
 
-        The same model and noise draws as `readings`, with no input staged on the host. The
-        readings stay on the device: `device_readings` (N, T) holds each env's latest (zero
-        before its first). The return value is their host copy (the same memory on the CPU).
+        The same model and noise draws as `readings`, with no input staged on the host and none
+        handed back: a tensor on the device; `device_readings` (N, T) holds each env's latest
+        (zero before its first).
         """
         index, (sensordata, xpos, xmat) = self._engine_views(sim, ids)
         out = self.readings(sensordata, xpos, xmat, rng)
         self.device_readings = self._keep(self.device_readings, index, out, sim.num_envs)
-        return self._to_host(out)
+        return out
 
-    def engine_positions(self, sim, ids: slice | np.ndarray = slice(None)) -> np.ndarray:
-        """World taxel positions (len(ids), T, 3) of envs `ids` of `sim`, from its device arrays;
-        kept on the device as `device_positions` (N, T, 3), returned as a host copy."""
+    def engine_positions(self, sim, ids: slice | np.ndarray = slice(None)) -> torch.Tensor:
+        """World taxel positions (len(ids), T, 3) of envs `ids` of `sim`, from its device arrays, as a
+        tensor on the device; each env's latest also kept as `device_positions` (N, T, 3)."""
         index, (_, xpos, xmat) = self._engine_views(sim, ids)
         out = self.positions(xpos, xmat)
         self.device_positions = self._keep(self.device_positions, index, out, sim.num_envs)
-        return self._to_host(out)
+        return out
 
     def contacts(self, sensordata):
         """Normal forces (N, P, K) and world contact points (N, P, K, 3) from sensordata."""
@@ -185,7 +186,7 @@ class DeviceTactile:
         if noise > 0:
             out = out * (1.0 + noise * self._normal(seed, n))
             out = torch.clamp(out, min=0.0)
-        return self._to_host(out) if as_numpy else out
+        return self.to_host(out) if as_numpy else out
 
     def _normal(self, seed: np.uint64, n: int) -> torch.Tensor:
         """`tactile.counter_normal` for flat indices env * T + taxel, in int64 bit arithmetic."""
@@ -203,4 +204,4 @@ class DeviceTactile:
         n = xpos.shape[0]
         rot = xmat[:, self.body_of_taxel].reshape(n, -1, 3, 3).to(torch.float32)
         out = torch.einsum("ntij,tj->nti", rot, self.local_positions) + xpos[:, self.body_of_taxel].to(torch.float32)
-        return self._to_host(out) if as_numpy else out
+        return self.to_host(out) if as_numpy else out

@@ -384,7 +384,7 @@ def _observe(env) -> Any:
 
 def _skin_readings(env, info: dict, env_index: int) -> np.ndarray:
     if "tactile" in info:
-        return info["tactile"][env_index]
+        return env.skin_to_host(info["tactile"][env_index:env_index + 1])[0]
     return env.tactile_readings(noisy=False)[env_index]
 
 
