@@ -48,7 +48,7 @@ from pathlib import Path
 
 import torch
 
-from tacgnn.config import from_dict, to_dict
+from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.datasets.store import read_manifest
 from tacgnn.files import atomic_write, atomic_write_text
 from tacgnn.hand.skin_layout import SkinLayout
@@ -125,11 +125,14 @@ def main() -> None:
     parser.add_argument("--lose-patch", default="palm", help="also the error with this skin patch reading 0 ('' none)")
     parser.add_argument("--out", default="docs/temporal_perception.json")
     parser.add_argument("--figure", default="docs/fig_blind_area.png", help="the plot ('' for none)")
+    parser.add_argument("--ensemble", action="store_true",
+                        help="also the mean of the runs' outputs (each ball matched to the first run's), one row")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
     loaded: dict[int, SequenceData] = {}  # by max_frames: the dataset is read once
     results = {}
+    outputs: list[tuple[torch.Tensor, object, SequenceData]] = []  # for --ensemble
     for run in args.runs:
         ckpt = Path(run) / "checkpoint.pt"
         model, cfg, _ = load_sequence_model(ckpt)
@@ -139,6 +142,7 @@ def main() -> None:
             loaded[cfg.max_frames] = load_sequences(args.dataset, cfg.max_frames)
         train_set, test_set = split_by_episode(loaded[cfg.max_frames], cfg.train_fraction, cfg.seed)
         pred = sequence_predictions(model, cfg, test_set)
+        outputs.append((pred, cfg, test_set))
         metrics = prediction_metrics(pred, cfg, test_set)
         name = label(cfg)
         own = Path(trained_on).resolve() == Path(args.dataset).resolve()
@@ -176,6 +180,11 @@ def main() -> None:
               f"({metrics['untouched_fraction']:.1%} of balls untouched)"
               + (f", {args.lose_patch} lost x{results[name][args.lose_patch + '_lost_rmse_ratio']:.2f}"
                  if args.lose_patch else ""), flush=True)
+    if args.ensemble:
+        results["ensemble"] = ensemble(outputs, args.runs)
+        e = results["ensemble"]
+        print(f"{'ensemble':>24}: overall {e['position_rmse_cm']:.3f} cm, touched {e['touched_rmse_cm']:.3f}, "
+              f"untouched {e['untouched_rmse_cm']:.3f}", flush=True)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(args.out, json.dumps({"dataset": args.dataset, "touched_within_cm": 3.0,
                                           "paper_tacgnn32_test_cm": PAPER_TACGNN32_TEST_CM, "runs": results},
@@ -184,6 +193,23 @@ def main() -> None:
     if args.figure:
         plot(results, args.figure)
         print(f"wrote {args.figure}")
+
+
+def ensemble(outputs: list, runs: list[str]) -> dict:
+    """Errors of the mean output of several runs on their shared test episodes. The balls look
+    alike, so each run's pair is first put in the order nearer the first run's."""
+    first, cfg, data = outputs[0]
+    for *_, other in outputs[1:]:
+        if not torch.equal(other.episode, data.episode) or not torch.equal(other.step, data.step):
+            raise ConfigError("--ensemble: the runs were tested on different episodes (another split or max_frames)")
+    aligned = []
+    for pred, _, _ in outputs:
+        swapped = pred[:, [3, 4, 5, 0, 1, 2]]
+        nearer = ((swapped - first) ** 2).sum(1) < ((pred - first) ** 2).sum(1)
+        aligned.append(torch.where(nearer[:, None], swapped, pred))
+    mean = torch.stack(aligned).mean(0)
+    return {"runs": list(runs), **prediction_metrics(mean, cfg, data),
+            "by_steps_since_touch": since_touch_curve(mean, cfg, data, BINS)}
 
 
 def plot(results: dict, path: str) -> None:

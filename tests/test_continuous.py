@@ -131,3 +131,37 @@ def test_bad_order_and_reward_settings_are_named(change):
             BaodingConfig(reward=RewardConfig(**value))
         else:
             BaodingConfig(**change)
+
+
+def test_ball_velocity_shows_each_balls_change_over_the_step_in_the_shown_order():
+    """`ball_velocity`: after the positions, (shown now - shown one step before) / control_dt, with
+    the balls in the order the positions take (canonical order swaps both), zero at reset; the
+    privileged critic's observation carries the true ones."""
+    cfg = BaodingConfig(num_envs=4, task="continuous", ball_order="canonical", ball_velocity=True, tactile=False)
+    env = BaodingEnv(cfg)
+    obs, _ = env.reset(seed=0)
+    velocity = slice(BALL_COLUMNS.stop, BALL_COLUMNS.stop + 6)
+    assert obs.shape == (4, 60) and env.single_observation_space.shape == (60,)
+    assert not obs[:, velocity].any()  # an episode's first frame: no motion yet
+    rng = np.random.default_rng(0)
+    before = env.ball_positions().reshape(4, 6)
+    swapped_seen = False
+    for _ in range(30):
+        obs, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, (4, 16)))
+        now = env.ball_positions().reshape(4, 6)
+        going = ~(terminated | truncated)
+        expected = (now - before) / cfg.control_dt
+        shown = obs[:, BALL_COLUMNS]
+        swap = ~np.all(np.isclose(shown, now, atol=1e-6), axis=1)
+        swapped_seen |= bool(swap[going].any())
+        expected = np.where(swap[:, None], expected[:, [3, 4, 5, 0, 1, 2]], expected)
+        np.testing.assert_allclose(obs[going][:, velocity], expected[going], rtol=1e-5, atol=1e-5)
+        np.testing.assert_array_equal(env.groundtruth_obs()[going], obs[going])  # ground truth: the same
+        before = now
+    assert np.abs(obs[:, velocity]).max() > 0.01  # the balls do move (m/s)
+    assert swapped_seen, "no step showed the balls swapped: the test did not check the order"
+
+
+def test_ball_velocity_only_with_shown_balls():
+    with pytest.raises(ConfigError, match="ball_velocity"):
+        BaodingConfig(obs_mode="tactile", ball_velocity=True)

@@ -157,7 +157,7 @@ def test_env_state_dict_restores_every_per_env_array():
         centre = (w * taxel_pos).sum(1) / w.sum(1)
         return np.concatenate([centre, centre[:, ::-1]], axis=1)
 
-    cfg = BaodingConfig(num_envs=3, obs_mode="perceived", task="middle", max_episode_steps=7,
+    cfg = BaodingConfig(num_envs=3, obs_mode="perceived", task="middle", max_episode_steps=7, ball_velocity=True,
                         randomization=RandomizationConfig(enabled=True))
     a, b = BaodingEnv(cfg, perception=perception), BaodingEnv(cfg, perception=perception)
     rng = np.random.default_rng(0)
@@ -168,7 +168,7 @@ def test_env_state_dict_restores_every_per_env_array():
     a.hold_count[1] = 2  # as if holding at the goal (hard task), so that it differs from a fresh env's
     b.load_state_dict(a.state_dict())
     per_env = [k for k, v in vars(a).items() if isinstance(v, np.ndarray) and v.ndim and len(v) == 3]
-    assert {"episode_steps", "perceived_balls", "hold_count"} <= set(per_env)
+    assert {"episode_steps", "perceived_balls", "hold_count", "true_velocity"} <= set(per_env)
     for key in per_env:
         assert np.array_equal(getattr(a, key), getattr(b, key)), key
     assert a.rng_state() == b.rng_state()

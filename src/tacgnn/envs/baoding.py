@@ -185,6 +185,11 @@ class BaodingConfig:
     """... or its distance from the palm centre along the palm exceeds this (m)."""
     tactile: bool = True
     """Compute the skin every step (needed by 'tactile' and 'perceived' observations)."""
+    ball_velocity: bool = False
+    """Also show the balls' velocities (m/s, 6 values after the positions, in the same ball order):
+    the change of the shown positions (true, or perceived with identities tracked) over the last
+    control step, zero at an episode's start. One frame of positions does not say where a rolling
+    ball is heading. 'groundtruth' and 'perceived' only (the privileged critic sees the true ones)."""
     track_balls: bool = True
     """'perceived': give the two predicted balls the identities that keep each nearest to where
     it was perceived one step before (starting from the spawn positions at reset). The balls
@@ -226,6 +231,9 @@ class BaodingConfig:
         check(self.fall_height[0] < self.fall_height[1], "fall_height", "needs low < high")
         check(self.spawn_noise >= 0, "spawn_noise", f"must be >= 0, got {self.spawn_noise}")
         check(self.joint_noise >= 0, "joint_noise", f"must be >= 0, got {self.joint_noise}")
+        check(not self.ball_velocity or self.obs_mode in ("groundtruth", "perceived"), "ball_velocity",
+              f"shows the velocities of the balls the observation shows: 'groundtruth' or 'perceived', "
+              f"not '{self.obs_mode}'")
         check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
               f"obs_mode '{self.obs_mode}' needs tactile: true")
 
@@ -288,6 +296,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.hold_count = np.full(n, -1, np.int64)  # >= 0 while holding after reaching the angle
         self.last_action = np.zeros((n, NUM_JOINTS))
         self.perceived_balls = np.zeros((n, 6))  # last perceived positions, identities tracked
+        self.true_balls = np.zeros((n, 6))  # true positions at the last step (ball_velocity)
+        self.true_velocity = np.zeros((n, 6))  # their change over the last step / control_dt
         self._seed(cfg.seed)
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
@@ -306,6 +316,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                 "taxel_pos": gym.spaces.Box(-np.inf, np.inf, (t, 3), np.float32),
             })
         dim = 4 * NUM_JOINTS if self.config.obs_mode == "finger_torque" else 3 * NUM_JOINTS + 6
+        dim += observation.BALL_VALUES if self.config.ball_velocity else 0
         return gym.spaces.Box(-np.inf, np.inf, (dim,), np.float32)
 
     @property
@@ -325,7 +336,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         mode = self.config.obs_mode
         balls = self.ball_positions()[ids].reshape(-1, 6)
         if mode == "groundtruth":
-            return self._ordered(balls)
+            return self._ordered(balls, self.true_velocity[ids])
         if mode == "no_perception":
             return np.zeros_like(balls)
         if mode == "finger_torque":
@@ -339,13 +350,18 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             previous = self.perceived_balls[ids] if self.config.track_balls else None
             assert tactile is not None and taxel_pos is not None  # the config turns the skin on for 'perceived'
             pred = observation.perceive_balls(self.perception, tactile, taxel_pos, joints, previous)
+            velocity = None
+            if self.config.ball_velocity:  # zero at an episode's first frame
+                fresh = (self.episode_steps[ids] == 0)[:, None]
+                velocity = np.where(fresh, 0.0, (pred - self.perceived_balls[ids]) / self.config.control_dt)
             self.perceived_balls[ids] = pred
-            return self._ordered(pred)
+            return self._ordered(pred, velocity)
         raise AssertionError(mode)
 
-    def _ordered(self, balls: np.ndarray) -> np.ndarray:
-        """(N, 6) ball positions in the config's `ball_order`."""
-        return ordered_balls(balls, self.config)
+    def _ordered(self, balls: np.ndarray, velocity: np.ndarray | None = None) -> np.ndarray:
+        """(N, 6) ball positions in the config's `ball_order`; with `ball_velocity`, (N, 12): then
+        the balls' `velocity` (N, 6) in the same order."""
+        return ordered_balls(balls, self.config, velocity if self.config.ball_velocity else None)
 
     def _observe(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None) -> Any:
         q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
@@ -359,7 +375,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def groundtruth_obs(self) -> np.ndarray:
         """(N, 54) the 'groundtruth' observation of the current state, whatever the obs mode:
         what a privileged critic reads during training (the actor gets the env's own obs)."""
-        balls = self._ordered(self.ball_positions().reshape(self.num_envs, 6))
+        balls = self._ordered(self.ball_positions().reshape(self.num_envs, 6), self.true_velocity)
         return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
                                     self.joint_high)
 
@@ -408,7 +424,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
     # --- state for exact resume --------------------------------------------------------
     # Per-env arrays beyond the physics that `state_dict` saves (a resume test fails if one is missed).
-    EPISODE_STATE = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action", "perceived_balls")
+    EPISODE_STATE = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action", "perceived_balls",
+                     "true_balls", "true_velocity")
 
     def state_dict(self) -> dict[str, Any]:
         """Everything that lets this batch continue bit for bit (numpy copies and plain data).
@@ -441,7 +458,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         unknown = sorted(set(state["buffers"]) - set(self.EPISODE_STATE))
         if unknown:
             raise ValueError(f"saved env state has buffers this env does not know: {unknown}")
-        missing = [name for name in self.EPISODE_STATE if name not in state["buffers"]]
+        unused = () if self.config.ball_velocity else ("true_balls", "true_velocity")  # read only with ball_velocity
+        missing = [name for name in self.EPISODE_STATE if name not in state["buffers"] and name not in unused]
         if missing:  # a checkpoint of an older version
             log.warning("saved env state lacks %s (older version): they restart from their reset values, "
                         "so this resume is not bit-for-bit", missing)
@@ -488,6 +506,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.vec_angle[ids] = self._ball_vector_angle(ids)
         self.hold_count[ids] = -1
         self.perceived_balls[ids] = self._spawn.ravel()  # where the balls are put
+        self.true_balls[ids] = self.ball_positions()[ids].reshape(-1, 6)
+        self.true_velocity[ids] = 0.0
 
     def _place_balls(self, qpos: np.ndarray, shift: np.ndarray) -> np.ndarray:
         for b, adr in enumerate(self.ball_qpos_adr):
@@ -542,6 +562,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             self._scrub(diverged)
         tactile, taxel_pos = self._skin(all_ids)
         balls = self.ball_positions()
+        flat = balls.reshape(self.num_envs, 6)
+        self.true_velocity[:] = (flat - self.true_balls) / cfg.control_dt
+        self.true_balls[:] = flat
         d_angle = self._update_angle(all_ids)
         fall = self._fallen(balls)
         reached = self.angle >= np.deg2rad(cfg.success_angle_deg) - 1e-9  # float round-off
@@ -675,15 +698,19 @@ def _capped(degrees: np.ndarray, cap: float) -> np.ndarray:
     return np.minimum(degrees, cap) if cap > 0 else degrees
 
 
-def ordered_balls(balls: np.ndarray, cfg: BaodingConfig) -> np.ndarray:
-    """(N, 6) ball positions in `cfg.ball_order`: the env and the real-hand controller both order
-    the balls here, so a policy sees them alike on either."""
+def ordered_balls(balls: np.ndarray, cfg: BaodingConfig, velocity: np.ndarray | None = None) -> np.ndarray:
+    """(N, 6) ball positions in `cfg.ball_order`, and after them the balls' `velocity` (N, 6) in the
+    same order when given: the env and the real-hand controller both order the balls here, so a
+    policy sees them alike on either."""
     if cfg.ball_order == "as_simulated":
-        return balls
-    axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
-    spawn = np.subtract(*cfg.spawn_offsets[::-1]) @ axes
-    start = np.arctan2(spawn[2], spawn[1]) + cfg.direction * np.deg2rad(ORDER_WINDOW_START_DEG)
-    return observation.canonical_ball_order(balls, axes[:, 1:3], float(start), cfg.direction)
+        swap = np.zeros(len(balls), dtype=bool)
+    else:
+        axes = palm_frame(cfg.hand)  # columns: normal, across, along fingers
+        spawn = np.subtract(*cfg.spawn_offsets[::-1]) @ axes
+        start = np.arctan2(spawn[2], spawn[1]) + cfg.direction * np.deg2rad(ORDER_WINDOW_START_DEG)
+        swap = observation.canonical_swap(balls, axes[:, 1:3], float(start), cfg.direction)
+    shown = observation.swap_balls(balls, swap)
+    return shown if velocity is None else np.concatenate([shown, observation.swap_balls(velocity, swap)], axis=1)
 
 
 class BaodingSingleEnv(gym.Env):

@@ -9,6 +9,8 @@ drift apart:
                          ball positions, m, world frame (6),
                          last action (16) ]
 
+    with `ball_velocity` (60): the balls' velocities, m/s (6), after their positions.
+
     action (16): absolute joint targets, [-1, 1] mapped linearly onto each joint's range.
 
 Ball positions perceived from the skin go through `perceive_balls`: the perception
@@ -108,7 +110,16 @@ def canonical_ball_order(balls: np.ndarray, plane: np.ndarray, reference: float,
     lies in [0, 180) degrees: the pair after each half turn looks like the start again.
     Swapping the two balls of the input leaves the output unchanged.
     """
+    return swap_balls(balls, canonical_swap(balls, plane, reference, direction))
+
+
+def canonical_swap(balls: np.ndarray, plane: np.ndarray, reference: float, direction: int) -> np.ndarray:
+    """(N,) True where `canonical_ball_order` swaps the two balls of `balls` (N, 6)."""
     v = (balls[:, 3:6] - balls[:, 0:3]) @ plane
     progress = (direction * (np.arctan2(v[:, 1], v[:, 0]) - reference)) % (2 * np.pi)
-    swap = progress >= np.pi
-    return np.where(swap[:, None], balls[:, [3, 4, 5, 0, 1, 2]], balls)
+    return progress >= np.pi
+
+
+def swap_balls(values: np.ndarray, swap: np.ndarray) -> np.ndarray:
+    """(N, 6) per-ball values (positions, velocities) with the two balls swapped where `swap` (N,)."""
+    return np.where(swap[:, None], values[:, [3, 4, 5, 0, 1, 2]], values)

@@ -115,6 +115,9 @@ class BlindController:
         if mode not in BLIND_MODES:
             raise ValueError(f"policy {cfg.policy} observes '{mode}', which a blind hand cannot provide; "
                              f"use a policy trained with obs_mode in {list(BLIND_MODES)}")
+        if self.env_config.ball_velocity:
+            raise ValueError(f"policy {cfg.policy} also observes the balls' velocities (ball_velocity), which "
+                             "this controller does not give; use a policy trained without them")
         perception = load_perception(cfg.policy) if mode == "perceived" else None
         if mode == "perceived" and perception is None:
             raise ValueError(f"policy {cfg.policy} is a 'perceived' policy but holds no perception model")
