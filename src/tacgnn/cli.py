@@ -39,7 +39,7 @@ import yaml
 
 from tacgnn.config import ConfigError, load_yaml, override, parse_overrides, to_dict
 from tacgnn.learning.policy import SHIPPED_POLICY
-from tacgnn.user_errors import error_line, is_user_error
+from tacgnn.user_errors import report_user_errors
 
 
 def _config(cls, args, **given):
@@ -539,7 +539,8 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     command = argv[0] if argv else ""
-    try:
+
+    def run() -> int:
         passthrough = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate}
         if command in passthrough:  # these parse their own flags (--help included)
             return passthrough[command](argparse.Namespace(rest=argv[1:]))
@@ -549,16 +550,8 @@ def main(argv: list[str] | None = None) -> int:
             if value:
                 Path(value).parent.mkdir(parents=True, exist_ok=True)
         return args.fn(args)
-    except KeyboardInterrupt:
-        if debug:
-            raise
-        print("tacgnn: interrupted", file=sys.stderr)
-        return 130
-    except Exception as err:
-        if debug or not is_user_error(err):
-            raise
-        print(f"{' '.join(['tacgnn', command][:1 + bool(command)])}: {error_line(err)}", file=sys.stderr)
-        return 2
+
+    return report_user_errors(run, " ".join(["tacgnn", command][:1 + bool(command)]), debug)
 
 
 if __name__ == "__main__":

@@ -31,24 +31,30 @@ def error_line(err: BaseException) -> str:
     return text
 
 
+def report_user_errors(run: Callable[[], int | None], name: str, debug: bool) -> int:
+    """`run()`'s exit code; a user error prints one line on stderr, `name` first, and returns 2
+    (with `debug`, its traceback instead); Ctrl-C returns 130."""
+    try:
+        return run() or 0
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as err:
+        if debug or not is_user_error(err):
+            raise
+        print(f"{name}: {error_line(err)}", file=sys.stderr)
+        return 2
+
+
 def run_script(main: Callable[[], int | None]) -> int:
     """Run a script's `main` as the command line runs a sub-command: a user error prints one
     line on stderr (the script's name first) and returns 2; ``--debug`` among the arguments
     shows the traceback instead. Use: ``raise SystemExit(run_script(main))``."""
     debug = "--debug" in sys.argv
     sys.argv = [a for a in sys.argv if a != "--debug"]
-    try:
-        return main() or 0
-    except KeyboardInterrupt:
-        if debug:
-            raise
-        print(f"{Path(sys.argv[0]).name}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as err:
-        if debug or not is_user_error(err):
-            raise
-        print(f"{Path(sys.argv[0]).name}: {error_line(err)}", file=sys.stderr)
-        return 2
+    return report_user_errors(main, Path(sys.argv[0]).name, debug)
 
 
 def labelled_paths(items: list[str], what: str = "policy") -> list[tuple[str, str]]:
