@@ -11,6 +11,7 @@ import torch
 
 from tacgnn.config import to_dict
 from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.envs.observation import BALL_COLUMNS, BALL_VALUES
 from tacgnn.real.controller import SHIPPED_POLICY
 
 
@@ -21,5 +22,26 @@ def blind_policy(folder: Path) -> Path:
         for key, value in defaults[section].items():
             data["env_config"][section].setdefault(key, value)
     path = Path(folder) / "blind_policy.pt"
+    torch.save(data, path)
+    return path
+
+
+def with_ball_velocity(policy: Path, folder: Path) -> Path:
+    """`policy` made into one that also observes the balls' velocities (`ball_velocity`): its
+    first layer gets six more inputs, after the ball positions, with small random weights (so
+    the velocities move its actions), and its normaliser passes them through unscaled."""
+    data = torch.load(policy, weights_only=True)
+    data["env_config"]["ball_velocity"] = True
+    at, extra = BALL_COLUMNS.stop, BALL_VALUES
+    actor = data["actor_state_dict"]
+    generator = torch.Generator().manual_seed(0)
+    for key, fill in (("obs_normalizer._mean", 0.0), ("obs_normalizer._var", 1.0), ("obs_normalizer._std", 1.0),
+                      ("mlp.0.weight", None)):
+        value = actor[key]
+        inserted = (torch.full((value.shape[0], extra), fill) if fill is not None
+                    else 0.05 * torch.randn(value.shape[0], extra, generator=generator))
+        actor[key] = torch.cat([value[:, :at], inserted.to(value.dtype), value[:, at:]], dim=1)
+    data["obs_dim"] += extra
+    path = Path(folder) / "blind_velocity_policy.pt"
     torch.save(data, path)
     return path

@@ -120,14 +120,6 @@ def test_a_policy_that_needs_ball_positions_is_refused(policy_file, tmp_path):
         BlindController(BlindControllerConfig(policy=str(tmp_path / "gt.pt")))
 
 
-def test_a_policy_that_needs_ball_velocities_is_refused(policy_file, tmp_path):
-    data = torch.load(policy_file, weights_only=True)
-    data["env_config"]["ball_velocity"] = True
-    torch.save(data, tmp_path / "velocity.pt")
-    with pytest.raises(ValueError, match="ball_velocity"):
-        BlindController(BlindControllerConfig(policy=str(tmp_path / "velocity.pt")))
-
-
 def test_ros_adapter_imports_without_ros_and_explains_what_is_missing():
     assert "rospy" not in sys.modules and "rclpy" not in sys.modules
     if importlib.util.find_spec("rospy") is None:

@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from real_policy import blind_policy
+from real_policy import blind_policy, with_ball_velocity
 
 from tacgnn.envs.baoding import BaodingEnv, ordered_balls
 from tacgnn.envs.observation import BALL_COLUMNS, action_to_target, assemble, target_to_action, track_ball_identities
@@ -48,8 +48,11 @@ def policy_file(tmp_path_factory):
     return blind_policy(tmp_path_factory.mktemp("policy"))
 
 
-@pytest.mark.parametrize("ball_order", ["as_simulated", "canonical"])
-def test_env_and_controller_give_the_same_observations_and_actions(policy_file, ball_order):
+@pytest.mark.parametrize(("ball_order", "ball_velocity"), [("as_simulated", False), ("canonical", False),
+                                                          ("canonical", True)])
+def test_env_and_controller_give_the_same_observations_and_actions(policy_file, ball_order, ball_velocity, tmp_path):
+    if ball_velocity:  # a policy that also sees the balls' velocities
+        policy_file = with_ball_velocity(policy_file, tmp_path)
     controller = BlindController(BlindControllerConfig(policy=str(policy_file)))
     controller.env_config = replace(controller.env_config, ball_order=ball_order)
     cfg = replace(controller.env_config, num_envs=1, seed=5, max_episode_steps=120,
@@ -77,6 +80,7 @@ def test_env_and_controller_give_the_same_observations_and_actions(policy_file, 
 
     obs, _ = env.reset(seed=5)
     compared = episodes = reordered = 0
+    fastest = 0.0  # the largest ball velocity shown (m/s), with ball_velocity
     while compared < 40:  # whole episodes, at least 40 steps in all
         q = env.joint_pos[0].copy()
         controller.reset(q)
@@ -86,6 +90,8 @@ def test_env_and_controller_give_the_same_observations_and_actions(policy_file, 
             obs_c = controller.observation(q, env.joint_vel[0], frames[-1][0], skin_joint_pos=skin_at)
             np.testing.assert_array_equal(obs_c, obs[0], err_msg=f"observation at step {steps}")
             reordered += not np.array_equal(ordered_balls(controller.balls, cfg), controller.balls)
+            if ball_velocity:
+                fastest = max(fastest, float(np.abs(obs_c[BALL_COLUMNS.stop:BALL_COLUMNS.stop + 6]).max()))
             action = controller.policy(obs)
             action_c = controller.act(obs_c)
             np.testing.assert_array_equal(action_c, np.clip(action[0], -1, 1), err_msg=f"action at step {steps}")
@@ -98,6 +104,8 @@ def test_env_and_controller_give_the_same_observations_and_actions(policy_file, 
             steps += 1
         compared += steps
         episodes += 1
+    if ball_velocity:
+        assert obs.shape[1] == 60 and fastest > 0.01  # the velocities were shown, and matched
     if ball_order == "canonical":  # the order was in play: on some steps it swapped the tracked balls
         assert reordered > 0
     assert controller.perception.flips > 3  # tracking had swaps to undo (the env also perceives each last frame)

@@ -115,9 +115,6 @@ class BlindController:
         if mode not in BLIND_MODES:
             raise ValueError(f"policy {cfg.policy} observes '{mode}', which a blind hand cannot provide; "
                              f"use a policy trained with obs_mode in {list(BLIND_MODES)}")
-        if self.env_config.ball_velocity:
-            raise ValueError(f"policy {cfg.policy} also observes the balls' velocities (ball_velocity), which "
-                             "this controller does not give; use a policy trained without them")
         perception = load_perception(cfg.policy) if mode == "perceived" else None
         if mode == "perceived" and perception is None:
             raise ValueError(f"policy {cfg.policy} is a 'perceived' policy but holds no perception model")
@@ -171,7 +168,8 @@ class BlindController:
 
     def observation(self, joint_pos: np.ndarray, joint_vel: np.ndarray, skin: np.ndarray,
                     skin_joint_pos: np.ndarray | None = None) -> np.ndarray:
-        """The (54,) float32 observation the env builds from this state (updates ball tracking).
+        """The (54,) float32 observation the env builds from this state ((60,) for a policy that
+        also sees the balls' velocities, `ball_velocity`); updates the ball tracking.
 
         `skin_joint_pos`: the joint angles at the instant of the skin frame, for the taxel
         positions (default: `joint_pos`).
@@ -186,9 +184,14 @@ class BlindController:
                              f"negative at taxels {np.flatnonzero(s < 0)[:5].tolist()}")
         if self.last_action is None:
             self.reset(q)
-        balls = ordered_balls(self.perceive(q, s.astype(np.float32), skin_joint_pos)[None], self.env_config)[0]
+        fresh, before = self.hand.episode_steps[0] == 0, self.balls
+        balls = self.perceive(q, s.astype(np.float32), skin_joint_pos)[None]
+        velocity = None
+        if self.env_config.ball_velocity:  # as the env: the change over the step, zero at an episode's first frame
+            velocity = np.zeros_like(balls) if fresh else (balls - before) / self.control_dt
+        shown = ordered_balls(balls, self.env_config, velocity)
         assert self.last_action is not None  # reset() set it
-        return observation.assemble(q[None], qd[None], balls[None], self.last_action[None], self.joint_low,
+        return observation.assemble(q[None], qd[None], shown, self.last_action[None], self.joint_low,
                                     self.joint_high)[0]
 
     def act(self, obs: np.ndarray) -> np.ndarray:
