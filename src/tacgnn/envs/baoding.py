@@ -206,7 +206,8 @@ class BaodingConfig:
               f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
         steps = self.continuous_seconds / self.control_dt if self.control_dt > 0 else 0.0
         check(self.continuous_seconds > 0 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",
-              f"must be a positive whole number of control steps ({self.control_dt} s), got {self.continuous_seconds}")
+              f"must be a positive whole number of control steps (control_dt {self.control_dt} s), "
+              f"got {self.continuous_seconds}")
         check(self.ball_radius > 0, "ball_radius", f"must be positive, got {self.ball_radius}")
         # MuJoCo refuses a moving body whose mass or inertia is below mjMINVAL (at compile, or
         # silently misbehaves when randomisation sets it later)
