@@ -50,6 +50,7 @@ import torch
 
 from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.datasets.store import read_manifest
+from tacgnn.envs.observation import track_ball_identities
 from tacgnn.files import atomic_write, atomic_write_text
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.perception.evaluation import patch_taxels, without_taxels
@@ -197,16 +198,13 @@ def main() -> None:
 
 def ensemble(outputs: list, runs: list[str]) -> dict:
     """Errors of the mean output of several runs on their shared test episodes. The balls look
-    alike, so each run's pair is first put in the order nearer the first run's."""
+    alike, so each run's pair is first put in the order nearer the first run's (as the env tracks
+    identities from one step to the next)."""
     first, cfg, data = outputs[0]
     for *_, other in outputs[1:]:
         if not torch.equal(other.episode, data.episode) or not torch.equal(other.step, data.step):
             raise ConfigError("--ensemble: the runs were tested on different episodes (another split or max_frames)")
-    aligned = []
-    for pred, _, _ in outputs:
-        swapped = pred[:, [3, 4, 5, 0, 1, 2]]
-        nearer = ((swapped - first) ** 2).sum(1) < ((pred - first) ** 2).sum(1)
-        aligned.append(torch.where(nearer[:, None], swapped, pred))
+    aligned = [torch.from_numpy(track_ball_identities(pred.numpy(), first.numpy())) for pred, _, _ in outputs]
     mean = torch.stack(aligned).mean(0)
     return {"runs": list(runs), **prediction_metrics(mean, cfg, data),
             "by_steps_since_touch": since_touch_curve(mean, cfg, data, BINS)}

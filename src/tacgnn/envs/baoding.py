@@ -352,9 +352,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             assert tactile is not None and taxel_pos is not None  # the config turns the skin on for 'perceived'
             pred = observation.perceive_balls(self.perception, tactile, taxel_pos, joints, previous)
             velocity = None
-            if self.config.ball_velocity:  # zero at an episode's first frame
-                fresh = (self.episode_steps[ids] == 0)[:, None]
-                velocity = np.where(fresh, 0.0, (pred - self.perceived_balls[ids]) / self.config.control_dt)
+            if self.config.ball_velocity:
+                velocity = observation.ball_velocity(pred, self.perceived_balls[ids], self.episode_steps[ids] == 0,
+                                                     self.config.control_dt)
             self.perceived_balls[ids] = pred
             return self._ordered(pred, velocity)
         raise AssertionError(mode)

@@ -99,6 +99,13 @@ def track_ball_identities(pred: np.ndarray, previous: np.ndarray) -> np.ndarray:
     return np.where(swap[:, None], swapped, pred)
 
 
+def ball_velocity(balls: np.ndarray, previous: np.ndarray, fresh: np.ndarray, control_dt: float) -> np.ndarray:
+    """(N, 6) the balls' velocities (m/s) a `ball_velocity` observation shows: their positions'
+    change since `previous`, one control step of `control_dt` s before; zero where `fresh` (N,),
+    an episode's first frame, which has no step before it."""
+    return np.where(fresh[:, None], 0.0, (balls - previous) / control_dt)
+
+
 def canonical_ball_order(balls: np.ndarray, plane: np.ndarray, reference: float, direction: int) -> np.ndarray:
     """(N, 6) ball pairs in the order that does not depend on which ball is which.
 

@@ -184,11 +184,11 @@ class BlindController:
                              f"negative at taxels {np.flatnonzero(s < 0)[:5].tolist()}")
         if self.last_action is None:
             self.reset(q)
-        fresh, before = self.hand.episode_steps[0] == 0, self.balls
+        fresh, before = self.hand.episode_steps == 0, self.balls
         balls = self.perceive(q, s.astype(np.float32), skin_joint_pos)[None]
         velocity = None
-        if self.env_config.ball_velocity:  # as the env: the change over the step, zero at an episode's first frame
-            velocity = np.zeros_like(balls) if fresh else (balls - before) / self.control_dt
+        if self.env_config.ball_velocity:
+            velocity = observation.ball_velocity(balls, before, fresh, self.control_dt)
         shown = ordered_balls(balls, self.env_config, velocity)
         assert self.last_action is not None  # reset() set it
         return observation.assemble(q[None], qd[None], shown, self.last_action[None], self.joint_low,
