@@ -10,6 +10,7 @@ import pytest
 
 from tacgnn.cli import main
 from tacgnn.config import ConfigError
+from tacgnn.learning.policy import SHIPPED_TEACHER
 
 
 def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
@@ -37,6 +38,10 @@ def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
     (["make-dataset", "baoding", "--out", "/dev/null/ds", "--samples", "10", "--shard-size", "10"], ["/dev/null"]),
     (["make-dataset", "baoding", "--out", "unused", "--samples", "100", "--shard-size", "30"], ["'samples'"]),
     (["make-dataset", "grasp", "--out", "unused", "--set", "settle_steps=0"], ["'settle_steps'"]),
+    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_TEACHER), "--set", "ball_order=canonical"],
+     ["trained with ball_order=as_simulated", "--set ball_order=as_simulated"]),
+    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_TEACHER), "--set", "ball_velocity=true"],
+     ["trained with ball_velocity=False", "--set ball_velocity=false"]),
     (["train-perception", "--dataset", "x", "--run", "y", "--set", "threads=0"], ["'threads'"]),
     (["train-perception", "--dataset", "x", "--run", "y", "--set", "model.channels=-3"], ["'model.channels'"]),
     (["train-perception", "--dataset", "/no/such/dataset", "--run", "y"], ["/no/such/dataset"]),

@@ -162,6 +162,7 @@ def test_ball_velocity_shows_each_balls_change_over_the_step_in_the_shown_order(
     assert swapped_seen, "no step showed the balls swapped: the test did not check the order"
 
 
-def test_ball_velocity_only_with_shown_balls():
+@pytest.mark.parametrize("mode", ["no_perception", "finger_torque", "noise_2"])
+def test_ball_velocity_only_with_shown_balls(mode):
     with pytest.raises(ConfigError, match="ball_velocity"):
-        BaodingConfig(obs_mode="tactile", ball_velocity=True)
+        BaodingConfig(obs_mode=mode, ball_velocity=True)

@@ -274,3 +274,32 @@ def test_generation_keeps_long_episodes_whole():
         steps = np.sort(data["step"][data["episode"] == e])
         assert np.array_equal(steps, np.arange(1, len(steps) + 1))  # from its first step, none missing
         assert e == cut or steps[-1] >= 30
+
+
+def test_a_policy_drives_the_recording_on_the_observation_it_was_trained_on():
+    """A ground-truth policy of the canonical ball order with the balls' velocities records
+    frames seeing exactly what the 'groundtruth' env of its config shows it, step for step."""
+    from dataclasses import replace
+
+    from tacgnn.datasets.baoding_data import record_shard
+    from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+
+    env_cfg = BaodingConfig(obs_mode="tactile", task="continuous", ball_order="canonical", ball_velocity=True)
+    cfg = BaodingDataConfig(samples=40, shard_size=40, num_envs=4, action_noise=0.0, env=env_cfg,
+                            policy_checkpoint="a policy")
+    weights = np.random.default_rng(0).normal(0, 0.3, (60, 16))
+    seen: list[np.ndarray] = []
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        seen.append(obs.copy())
+        return np.tanh(obs @ weights)
+
+    record_shard(cfg, 0, policy)
+    seed = cfg.seed * 100_003
+    truth = BaodingEnv(replace(env_cfg, obs_mode="groundtruth", tactile=False, num_envs=4, seed=seed))
+    obs, _ = truth.reset(seed=seed)
+    assert obs.shape == (4, 60) and len(seen) > 5
+    for shown in seen:
+        np.testing.assert_allclose(shown, obs, atol=1e-6)
+        obs = truth.step(np.tanh(obs @ weights))[0]
+    assert np.abs(np.stack(seen)[1:, :, 38:44]).max() > 0  # the velocities are shown, not zeros

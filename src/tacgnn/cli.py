@@ -191,6 +191,11 @@ def cmd_make_dataset(args) -> int:
             if policy_env.obs_mode != "groundtruth":
                 raise ConfigError(f"--policy {args.policy}: a '{policy_env.obs_mode}' policy; recording needs "
                                   "a 'groundtruth' one (it reads the true ball positions)")
+            for key in ("ball_order", "ball_velocity"):  # what the policy's observation shows of the balls
+                if getattr(policy_env, key) != getattr(env, key):
+                    raise ConfigError(f"--policy {args.policy}: trained with {key}={getattr(policy_env, key)}, "
+                                      f"recording with {key}={getattr(env, key)}; add --set "
+                                      f"{key}={str(getattr(policy_env, key)).lower()}")
         baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
     else:
         grasp_cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,

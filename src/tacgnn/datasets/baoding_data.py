@@ -173,14 +173,15 @@ class EpisodeFilter:
 
 
 def policy_controller(policy: Policy, action_noise: float):
-    """Drive the balls with a ground-truth policy: it sees the true ball positions, plus action noise."""
+    """Drive the balls with a ground-truth policy: it sees the true ball positions (in the env
+    config's ball order, with their velocities if it shows them), plus action noise."""
 
     def make(env: BaodingEnv, seed: int):
         rng = np.random.default_rng(seed)
 
         def act(obs: dict) -> np.ndarray:
-            proprio = obs["proprio"]  # joint pos (16), 0.2 x vel (16), last action (16)
-            full = np.concatenate([proprio[:, :32], env.ball_positions().reshape(-1, 6), proprio[:, 32:]], 1)
+            del obs  # the recording env shows the skin; the policy reads the ground-truth observation
+            full = env.groundtruth_obs()
             return np.clip(policy(full) + action_noise * rng.standard_normal((len(full), 16)), -1, 1)
 
         return act

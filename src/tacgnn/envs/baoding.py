@@ -189,7 +189,8 @@ class BaodingConfig:
     """Also show the balls' velocities (m/s, 6 values after the positions, in the same ball order):
     the change of the shown positions (true, or perceived with identities tracked) over the last
     control step, zero at an episode's start. One frame of positions does not say where a rolling
-    ball is heading. 'groundtruth' and 'perceived' only (the privileged critic sees the true ones)."""
+    ball is heading. 'groundtruth' and 'perceived' (the privileged critic sees the true ones), and
+    'tactile', whose `groundtruth_obs` (a policy recording a dataset) then shows them."""
     track_balls: bool = True
     """'perceived': give the two predicted balls the identities that keep each nearest to where
     it was perceived one step before (starting from the spawn positions at reset). The balls
@@ -232,9 +233,9 @@ class BaodingConfig:
         check(self.fall_height[0] < self.fall_height[1], "fall_height", "needs low < high")
         check(self.spawn_noise >= 0, "spawn_noise", f"must be >= 0, got {self.spawn_noise}")
         check(self.joint_noise >= 0, "joint_noise", f"must be >= 0, got {self.joint_noise}")
-        check(not self.ball_velocity or self.obs_mode in ("groundtruth", "perceived"), "ball_velocity",
-              f"shows the velocities of the balls the observation shows: 'groundtruth' or 'perceived', "
-              f"not '{self.obs_mode}'")
+        check(not self.ball_velocity or self.obs_mode in ("groundtruth", "perceived", "tactile"), "ball_velocity",
+              f"shows the velocities of the balls the observation shows: 'groundtruth' or 'perceived' "
+              f"('tactile': in its ground-truth view), not '{self.obs_mode}'")
         check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
               f"obs_mode '{self.obs_mode}' needs tactile: true")
 
