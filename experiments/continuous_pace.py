@@ -12,7 +12,8 @@ Two measurements, one JSON (with provenance):
   still makes at that frequency (a gait of f strokes per second can use no more). Repeated
   for each actuator torque limit in `--limits` (0.5 N m is the task's; 100 stands for the
   old unlimited hand). The action maps straight onto the joint target (no per-step bound),
-  so these are the hand's limits, not the env's.
+  so these are the hand's limits, not the env's. A policy's speed bounds below use the top
+  speed of its own hand (its checkpoint's hand config, torque limit included).
 * ``policies``: each checkpoint runs `--episodes` deterministic 10 s continuous-task episodes
   side by side (as `continuous_angle.py`), read back at every physics substep: the turn rate
   per second of the episode (mean over the episodes that keep both balls, and the fastest
@@ -210,6 +211,11 @@ def pace_summary(r: dict, top_speed: float) -> dict:
     }
 
 
+def fmt(value: float | None) -> str:
+    """`value` to two decimals; 'n/a' where no episode gave it (every episode dropped a ball early)."""
+    return "n/a" if value is None else f"{value:.2f}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
@@ -218,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE")
     parser.add_argument("--limits", nargs="+", type=float, default=[0.5, 100.0], metavar="N_M",
-                        help="actuator torque limits of the bare-hand test (the first is the task's)")
+                        help="actuator torque limits of the bare-hand test")
     args = parser.parse_args(argv)
     changes = parse_overrides(args.set)
     items = labelled_paths(args.policies)
@@ -231,10 +237,15 @@ def main(argv: list[str] | None = None) -> int:
             sq = ", ".join(f"{k} {s['swing_of_range']:.2f}" for k, s in v["square_wave"].items())
             print(f"  {joint}: up {v['step']['up']['top_speed_rad_s']:.2f} rad/s, 90 % in "
                   f"{v['step']['up']['time_to_90pct_s']} s; square-wave swing / range: {sq}")
-    top = hand[f"{args.limits[0]:g} N m"]["top_speed_min_over_joints_rad_s"]
     policies = {}
+    own_top: dict[str, float] = {}  # the bare hand's top joint speed under each policy's own hand
     for label, ckpt in items:
-        s = pace_summary(rollout(ckpt, args.episodes, args.seed, changes), top)
+        r = rollout(ckpt, args.episodes, args.seed, changes)
+        key = repr(r["config"].hand)
+        if key not in own_top:
+            own_top[key] = hand_limits(r["config"], r["config"].hand.torque_limit,
+                                       range(FINGER_JOINTS))["top_speed_min_over_joints_rad_s"]
+        s = pace_summary(r, own_top[key])
         policies[label] = s
         print(f"{label}: {s['turns_mean']:.2f} turns ({s['falls']}/{s['episodes']} falls), fastest 1 s "
               f"{s['fastest_1s_window_deg_per_s']:.0f} deg/s; finger torques at the limit "
@@ -242,14 +253,14 @@ def main(argv: list[str] | None = None) -> int:
               f"(any joint {100 * s['finger_joints_at_torque_limit_any_joint']:.1f} %); "
               f"speed p95 {s['finger_speed_p95_rad_s']:.2f}, max {s['finger_speed_max_rad_s']:.2f} rad/s; "
               f"actions at the end {100 * s['finger_actions_at_end_of_range']:.1f} %")
-        print(f"  largest swing {s['largest_swing_rad']:.2f} rad: the top speed allows "
-              f"{s['speed_bound_half_turns_per_s']:.2f} strokes/s; half turns/s {s['half_turns_per_s_kept']:.2f}")
+        print(f"  largest swing {fmt(s['largest_swing_rad'])} rad: the top speed allows "
+              f"{fmt(s['speed_bound_half_turns_per_s'])} strokes/s; half turns/s {fmt(s['half_turns_per_s_kept'])}")
         print(f"  deg/s per second (kept): {np.round(s['deg_per_s_each_second_kept_mean'] or [], 0).tolist()}")
         for joint, v in s["joints"].items():
             print(f"  {joint}: at limit {100 * v['at_torque_limit']:.1f} %, "
                   f"speed {np.round(v['speed_p50_p95_max_rad_s'], 2).tolist()}, "
-                  f"swing {v['swing_rad_median']:.2f} rad, main {v['main_frequency_hz']:.2f} Hz, "
-                  f"speed bound {v['speed_bound_hz']:.2f} Hz")
+                  f"swing {fmt(v['swing_rad_median'])} rad, main {fmt(v['main_frequency_hz'])} Hz, "
+                  f"speed bound {fmt(v['speed_bound_hz'])} Hz")
     record = {"hand": hand, "policies": policies,
               "provenance": provenance(dict(items), args.seed,
                                        {"episodes": args.episodes, "set": args.set, "limits": args.limits})}
