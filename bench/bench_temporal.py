@@ -12,7 +12,7 @@ made by ``tacgnn make-dataset baoding --keep-every 1``), else synthetic ones (tw
 1 torch thread; several rounds, the best is the headline, the median beside it (the 2
 cores are shared).
 
-Usage: ``python bench/bench_temporal.py [--dataset data/baoding_seq] [--rounds 7] [--steps 50]``
+Usage: ``python bench/bench_temporal.py [--dataset data/baoding_seq] [--rounds 7] [--steps 50] [--channels 32]``
 """
 
 from __future__ import annotations
@@ -70,17 +70,19 @@ def main() -> None:
     parser.add_argument("--dataset", default="", help="a Baoding dataset to take 256 real frames from")
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--channels", type=int, default=32, help="TacGNN width, single-frame and temporal alike")
     args = parser.parse_args()
     torch.set_num_threads(1)
     readings, positions = dataset_frames(args.dataset) if args.dataset else synthetic_frames()
     joints, actions = torch.zeros(B, 16), torch.zeros(B, 16)
     print(f"batch {B}, {float((readings > 0).sum(1).float().mean()):.1f} activated taxels per frame "
-          f"({'dataset ' + args.dataset if args.dataset else 'synthetic frames'}), 1 thread, "
+          f"({'dataset ' + args.dataset if args.dataset else 'synthetic frames'}), TacGNN {args.channels} channels, "
+          f"1 thread, "
           f"load average {os.getloadavg()[0]:.2f}")
     results = {}
     for name in ("tacgnn", "mlp"):
         cfg = TemporalModelConfig()
-        cfg = dataclasses.replace(cfg, frame=dataclasses.replace(cfg.frame, name=name))
+        cfg = dataclasses.replace(cfg, frame=dataclasses.replace(cfg.frame, name=name, channels=args.channels))
         torch.manual_seed(0)
         single = build_model(dataclasses.replace(cfg.frame, out_dim=6)).eval()
         temporal = TemporalPerception(cfg).eval()
