@@ -77,8 +77,7 @@ def main() -> None:
     joints, actions = torch.zeros(B, 16), torch.zeros(B, 16)
     print(f"batch {B}, {float((readings > 0).sum(1).float().mean()):.1f} activated taxels per frame "
           f"({'dataset ' + args.dataset if args.dataset else 'synthetic frames'}), TacGNN {args.channels} channels, "
-          f"1 thread, "
-          f"load average {os.getloadavg()[0]:.2f}")
+          f"1 thread, load average {os.getloadavg()[0]:.2f}")
     results = {}
     for name in ("tacgnn", "mlp"):
         cfg = TemporalModelConfig()

@@ -241,9 +241,10 @@ def main(argv: list[str] | None = None) -> int:
     own_top: dict[str, float] = {}  # the bare hand's top joint speed under each policy's own hand
     for label, ckpt in items:
         r = rollout(ckpt, args.episodes, args.seed, changes)
-        key = repr(r["config"].hand)
+        cfg = r["config"]
+        key = repr((cfg.hand, cfg.sim, cfg.initial_joint_pos))  # all that `hand_limits` reads of the config
         if key not in own_top:
-            own_top[key] = hand_limits(r["config"], r["config"].hand.torque_limit,
+            own_top[key] = hand_limits(cfg, cfg.hand.torque_limit,
                                        range(FINGER_JOINTS))["top_speed_min_over_joints_rad_s"]
         s = pace_summary(r, own_top[key])
         policies[label] = s

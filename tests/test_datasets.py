@@ -281,7 +281,7 @@ def test_a_policy_drives_the_recording_on_the_observation_it_was_trained_on():
     frames seeing exactly what the 'groundtruth' env of its config shows it, step for step."""
     from dataclasses import replace
 
-    from tacgnn.datasets.baoding_data import record_shard
+    from tacgnn.datasets.baoding_data import record_shard, shard_seed
     from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 
     env_cfg = BaodingConfig(obs_mode="tactile", task="continuous", ball_order="canonical", ball_velocity=True)
@@ -295,7 +295,7 @@ def test_a_policy_drives_the_recording_on_the_observation_it_was_trained_on():
         return np.tanh(obs @ weights)
 
     record_shard(cfg, 0, policy)
-    seed = cfg.seed * 100_003
+    seed = shard_seed(cfg, 0)
     truth = BaodingEnv(replace(env_cfg, obs_mode="groundtruth", tactile=False, num_envs=4, seed=seed))
     obs, _ = truth.reset(seed=seed)
     assert obs.shape == (4, 60) and len(seen) > 5

@@ -92,7 +92,13 @@ def metadata(cfg: BaodingDataConfig) -> dict:
 
 
 Policy = Callable[[np.ndarray], np.ndarray]
-"""A ground-truth policy: (N, 54) observations -> (N, 16) actions (`tacgnn.learning.policy.load_policy`)."""
+"""A ground-truth policy: (N, 54) observations (60 with `ball_velocity`) -> (N, 16) actions
+(`tacgnn.learning.policy.load_policy`)."""
+
+
+def shard_seed(cfg: BaodingDataConfig, index: int) -> int:
+    """The seed of shard `index`'s envs and rollout: each shard is deterministic on its own."""
+    return cfg.seed * 100_003 + index
 
 
 def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = None,
@@ -102,7 +108,7 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
     The balls are driven by `controller`, else by `policy` (the ground-truth policy named by
     `cfg.policy_checkpoint`, loaded by the caller), else by the scripted finger wave.
     """
-    seed = cfg.seed * 100_003 + index
+    seed = shard_seed(cfg, index)
     env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed))
     obs, _ = env.reset(seed=seed)
     if controller is None:
