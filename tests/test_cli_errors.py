@@ -42,6 +42,8 @@ def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
      ["trained with ball_order=as_simulated", "--set ball_order=as_simulated"]),
     (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_TEACHER), "--set", "ball_velocity=true"],
      ["trained with ball_velocity=False", "--set ball_velocity=false"]),
+    (["evaluate", str(SHIPPED_TEACHER), "--episodes", "1", "--set", "ball_velocity=true"],
+     ["trained with ball_velocity=False", "--set ball_velocity=false"]),
     (["train-perception", "--dataset", "x", "--run", "y", "--set", "threads=0"], ["'threads'"]),
     (["train-perception", "--dataset", "x", "--run", "y", "--set", "model.channels=-3"], ["'model.channels'"]),
     (["train-perception", "--dataset", "/no/such/dataset", "--run", "y"], ["/no/such/dataset"]),

@@ -117,6 +117,13 @@ def test_policy_fits_compares_what_the_policy_observes():
         check_policy_fits(checkpoint, replace(perceived, skin=fewer))
     groundtruth = {"env_config": to_dict(BaodingConfig())}
     check_policy_fits(groundtruth, BaodingConfig(tactile=False))  # a ground-truth policy needs no skin
+    # the balls shown as the policy was trained: another order would act on the wrong ball, silently
+    with pytest.raises(CheckpointError, match="trained with ball_order=as_simulated.*--set ball_order=as_simulated"):
+        check_policy_fits(groundtruth, BaodingConfig(ball_order="canonical"))
+    with pytest.raises(CheckpointError, match="trained with ball_velocity=False"):
+        check_policy_fits(groundtruth, BaodingConfig(ball_velocity=True))
+    blind = {"env_config": to_dict(BaodingConfig(obs_mode="no_perception"))}
+    check_policy_fits(blind, BaodingConfig(obs_mode="no_perception", ball_order="canonical"))  # it sees no balls
 
 
 # --- train-policy: folders that cannot be written, full disks --------------------------------

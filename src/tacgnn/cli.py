@@ -185,17 +185,17 @@ def cmd_make_dataset(args) -> int:
                                              num_envs=args.envs or baoding_data.BaodingDataConfig.num_envs)
         policy = None
         if args.policy:
+            from dataclasses import replace
+
+            from tacgnn.learning.checkpoint import check_policy_fits, load_policy_file
             from tacgnn.learning.policy import load_policy
 
             policy, policy_env = load_policy(args.policy)
             if policy_env.obs_mode != "groundtruth":
                 raise ConfigError(f"--policy {args.policy}: a '{policy_env.obs_mode}' policy; recording needs "
                                   "a 'groundtruth' one (it reads the true ball positions)")
-            for key in ("ball_order", "ball_velocity"):  # what the policy's observation shows of the balls
-                if getattr(policy_env, key) != getattr(env, key):
-                    raise ConfigError(f"--policy {args.policy}: trained with {key}={getattr(policy_env, key)}, "
-                                      f"recording with {key}={getattr(env, key)}; add --set "
-                                      f"{key}={str(getattr(policy_env, key)).lower()}")
+            # the policy acts on the recording env's ground-truth view: the balls shown as it was trained
+            check_policy_fits(load_policy_file(args.policy), replace(env, obs_mode="groundtruth"), args.policy)
         baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
     else:
         grasp_cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,

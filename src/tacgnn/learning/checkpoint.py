@@ -155,9 +155,11 @@ def check_policy_fits(checkpoint: dict[str, Any], env_cfg: BaodingConfig, path: 
     """Raise CheckpointError unless the policy in `checkpoint` can act on what an env of `env_cfg` observes.
 
     For acting, where other physics, tasks or skin noise are fine: the observation mode must
-    match, and a perceiving policy needs a skin of as many taxels as its perception reads.
-    Compared on the configs, before any tensor is built, so a mismatch is named rather than
-    failing as a tensor size error.
+    match, a perceiving policy needs a skin of as many taxels as its perception reads, and a
+    policy that sees the balls needs them shown as it was trained (`ball_order`, `ball_velocity`:
+    another order is a silent wrong answer, velocities another observation width). Compared on
+    the configs, before any tensor is built, so a mismatch is named rather than failing as a
+    tensor size error.
     """
     stored = stored_env_config(checkpoint, path)
     diffs: list[tuple[str, Any, Any]] = []
@@ -166,6 +168,13 @@ def check_policy_fits(checkpoint: dict[str, Any], env_cfg: BaodingConfig, path: 
     elif env_cfg.obs_mode in ("perceived", "tactile") and stored.skin.num_taxels != env_cfg.skin.num_taxels:
         diffs.append(("skin (number of taxels)", stored.skin.num_taxels, env_cfg.skin.num_taxels))
     _raise_on(diffs, f"the policy in {path} cannot act in this env: it observes differently")
+    if stored.obs_mode in ("no_perception", "finger_torque", "tactile"):  # its observation shows no ball positions
+        return
+    for key in ("ball_order", "ball_velocity"):
+        trained, requested = getattr(stored, key), getattr(env_cfg, key)
+        if trained != requested:
+            raise CheckpointError(f"the policy in {path} was trained with {key}={trained}, this env has "
+                                  f"{key}={requested}; add --set {key}={str(trained).lower()}")
 
 
 def _raise_on(diffs: list[tuple[str, Any, Any]], what: str) -> None:
