@@ -185,14 +185,14 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
     perc = tmp_path / "perc" / "checkpoint.pt"
 
     seen, predicted = [], []
-    load_policy = evaluation.load_policy
+    policy_from_checkpoint = evaluation.policy_from_checkpoint
 
-    def spying_load_policy(path):
-        policy, cfg = load_policy(path)
-        return (lambda obs: seen.append(obs[:, BALL_COLUMNS].copy()) or policy(obs)), cfg
+    def spying_policy_from_checkpoint(data, path):
+        policy = policy_from_checkpoint(data, path)
+        return lambda obs: seen.append(obs[:, BALL_COLUMNS].copy()) or policy(obs)
 
     call = OnlinePerception.__call__
-    monkeypatch.setattr(evaluation, "load_policy", spying_load_policy)
+    monkeypatch.setattr(evaluation, "policy_from_checkpoint", spying_policy_from_checkpoint)
     def recording_call(self, *a):
         predicted.append(call(self, *a))
         return predicted[-1]

@@ -187,15 +187,17 @@ def cmd_make_dataset(args) -> int:
         if args.policy:
             from dataclasses import replace
 
-            from tacgnn.learning.checkpoint import check_policy_fits, load_policy_file
-            from tacgnn.learning.policy import load_policy
+            from tacgnn.learning.checkpoint import check_policy_fits, load_policy_file, stored_env_config
+            from tacgnn.learning.policy import policy_from_checkpoint
 
-            policy, policy_env = load_policy(args.policy)
+            data = load_policy_file(args.policy)
+            policy_env = stored_env_config(data, args.policy)
             if policy_env.obs_mode != "groundtruth":
                 raise ConfigError(f"--policy {args.policy}: a '{policy_env.obs_mode}' policy; recording needs "
                                   "a 'groundtruth' one (it reads the true ball positions)")
             # the policy acts on the recording env's ground-truth view: the balls shown as it was trained
-            check_policy_fits(load_policy_file(args.policy), replace(env, obs_mode="groundtruth"), args.policy)
+            check_policy_fits(data, replace(env, obs_mode="groundtruth"), args.policy)
+            policy = policy_from_checkpoint(data, args.policy)
         baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
     else:
         grasp_cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,

@@ -31,7 +31,7 @@ from tacgnn.files import FileProblem, atomic_write_text
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.online_temporal import make_online_perception
-from tacgnn.learning.policy import load_perception, load_policy
+from tacgnn.learning.policy import load_perception, perception_from_checkpoint, policy_from_checkpoint
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.sequence_checkpoint import is_sequence_checkpoint, load_sequence_model
@@ -162,11 +162,11 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
         perception = perception_from_file(perception_from, to_dict(env_cfg.skin))
         env_cfg = replace(env_cfg, obs_mode="perceived", tactile=True)
     if perception is None and env_cfg.obs_mode == "perceived":
-        perception = load_perception(checkpoint)
+        perception = perception_from_checkpoint(data)
     if isinstance(perception, OnlinePerception) and perception.readings.shape[1] != env_cfg.skin.num_taxels:
         raise ckpt.CheckpointError(f"the perception reads {perception.readings.shape[1]} taxels, "
                          f"the env's skin has {env_cfg.skin.num_taxels}")
-    policy, _ = load_policy(checkpoint)
+    policy = policy_from_checkpoint(data, checkpoint)
     env = BaodingEnv(env_cfg, perception=perception)
     obs, _ = env.reset(seed=seed)
 

@@ -1,7 +1,8 @@
 """A trained policy for acting: load it (with its perception), or export the small file the demo ships.
 
 `load_policy` and `load_perception` read a training checkpoint or an exported policy;
-evaluation, the demo, dataset recording and the real-hand controller all act through them.
+evaluation, the demo, dataset recording and the real-hand controller all act through them
+(`policy_from_checkpoint` and `perception_from_checkpoint` for a file already read).
 """
 
 from __future__ import annotations
@@ -39,6 +40,12 @@ def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], B
     """
     data = ckpt.load_policy_file(path)
     env_cfg = ckpt.stored_env_config(data, path)
+    return policy_from_checkpoint(data, path), env_cfg
+
+
+def policy_from_checkpoint(data: dict, path: str | Path) -> Callable[[np.ndarray], np.ndarray]:
+    """`load_policy`'s policy from a policy file already read (`checkpoint.load_policy_file(path)`),
+    for callers that check its configs first; `path` names it in errors."""
     try:
         ppo_cfg = from_dict(PPOConfig, data["ppo_config"])
     except ConfigError as err:
@@ -62,12 +69,16 @@ def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], B
                 raise ValueError(f"policy {path} reads ({obs_dim},) observations, got shape {tuple(x.shape)}")
             return actor(TensorDict({"policy": x}, batch_size=[x.shape[0]])).numpy()
 
-    return policy, env_cfg
+    return policy
 
 
 def load_perception(path: str | Path) -> OnlinePerception | None:
     """The perception a 'perceived' policy was trained with (None for other observation modes)."""
-    data = ckpt.load_policy_file(path)
+    return perception_from_checkpoint(ckpt.load_policy_file(path))
+
+
+def perception_from_checkpoint(data: dict) -> OnlinePerception | None:
+    """`load_perception` of a policy file already read (`checkpoint.load_policy_file`)."""
     if "perception" not in data:
         return None
     state = data["perception"]
