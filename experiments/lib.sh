@@ -28,3 +28,5 @@ offline_perception() {
 other_hand() {
   awk -v k=$1 'BEGIN { printf "hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }'
 }
+# stage NAME: a line on stderr with the seconds since the script started, to time each step
+stage() { echo "[stage +${SECONDS}s] $*" >&2; }
