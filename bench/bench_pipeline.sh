@@ -16,7 +16,13 @@ SEED=${2:-0}
 ITERS=${3:-400}
 DIR=${4:-$(mktemp -d)}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-[ -d "$DIR/.git" ] || git clone --quiet "$ROOT" "$DIR"
+NAME=${MODEL%-temporal}
+RUN=blind_${NAME}$( [ "$NAME" != "$MODEL" ] && echo _temporal || true )_s$SEED
+RESULT=results/table3/${RUN}_model_$(printf %06d "$ITERS").json
+if [ ! -d "$DIR/.git" ]; then
+  git clone --quiet "$ROOT" "$DIR"
+  rm -f "$DIR/$RESULT"  # the repository's own figure for this run would be printed instead of this one's
+fi
 cd "$DIR"
 start=$SECONDS
 make install >/dev/null
@@ -25,9 +31,7 @@ start=$SECONDS
 experiments/baoding_pipeline.sh "$MODEL" "$SEED" "$ITERS" > pipeline.log 2>&1
 echo "pipeline ($MODEL, seed $SEED, $ITERS it.): $((SECONDS - start)) s in $DIR"
 grep '^\[stage ' pipeline.log
-NAME=${MODEL%-temporal}
-RUN=blind_${NAME}$( [ "$NAME" != "$MODEL" ] && echo _temporal || true )_s$SEED
-.venv/bin/python - "results/table3/${RUN}_model_$(printf %06d "$ITERS").json" <<'PY'
+.venv/bin/python - "$RESULT" <<'PY'
 import json
 import sys
 
