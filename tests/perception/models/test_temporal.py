@@ -35,7 +35,7 @@ def inputs(B, L, seed=0):
     return readings, positions, torch.randn(B, L, 16, generator=g), torch.rand(B, L, 16, generator=g) * 2 - 1
 
 
-@pytest.mark.parametrize("name", ["tacgnn", "mlp"])
+@pytest.mark.parametrize("name", ["tacgnn", "mlp", "cnn"])
 def test_step_by_step_equals_windows_and_padding_holds_the_state(name):
     torch.manual_seed(0)
     model = model_of(small(name)).eval()
