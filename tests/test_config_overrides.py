@@ -247,6 +247,10 @@ def test_ppo_overrides(items, key):
     ("perception", ["model.k=[]"], "model.k"),
     ("train-perception", ["threads=0"], "threads"),
     ("train-perception", ["model.sample_ratio=2"], "model.sample_ratio"),
+    ("ppo", ["seed=1000000000000000000000000000000"], "seed"),  # numpy seeds stop at 2**32 - 1
+    ("ppo", ["seed=-1"], "seed"),
+    ("env", ["seed=4294967296"], "seed"),
+    ("train-perception", ["seed=-3"], "seed"),
 ])
 def test_known_bad_values_are_refused_at_load_time(tree, items, key):
     with pytest.raises(ConfigError, match=rf"['.]{re.escape(key)}'"):

@@ -48,6 +48,17 @@ def check(condition: bool, key: str, message: str) -> None:
         raise _key_error(key, message)
 
 
+#: The largest seed a config takes: numpy's legacy seeding stops at 2**32 - 1, and a
+#: data-parallel run adds its rank's offset, so the range leaves it room.
+MAX_SEED = 2**31 - 1
+
+
+def check_seed(seed: int, key: str = "seed") -> None:
+    """Raise `ConfigError` for `key` unless `seed` is an int in 0..MAX_SEED."""
+    check(isinstance(seed, int) and not isinstance(seed, bool) and 0 <= seed <= MAX_SEED, key,
+          f"must be an int in 0..{MAX_SEED}, got {seed!r}")
+
+
 # PyYAML follows YAML 1.1, where a float needs a dot: '1e-4' would load as a string. YAML 1.2
 # (and every user) reads it as a number.
 class _Loader(yaml.SafeLoader):

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tacgnn.config import ConfigError, check, to_dict
+from tacgnn.config import ConfigError, check, check_seed, to_dict
 from tacgnn.datasets.store import Field, ShardedWriter
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.scripted import FingerWave
@@ -54,6 +54,7 @@ class BaodingDataConfig:
     env: BaodingConfig = field(default_factory=lambda: BaodingConfig(obs_mode="tactile"))
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         check(self.shard_size > 0, "shard_size", f"must be >= 1, got {self.shard_size}")
         check(self.samples > 0 and self.samples % self.shard_size == 0, "samples",
               f"must be a positive multiple of shard_size ({self.shard_size}), got {self.samples}")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tacgnn.config import check, to_dict
+from tacgnn.config import check, check_seed, to_dict
 from tacgnn.datasets.store import Field, ShardedWriter
 from tacgnn.envs.grasp import GraspConfig, PowerGrasp
 
@@ -28,6 +28,7 @@ class GraspDataConfig:
     grasp: GraspConfig = field(default_factory=GraspConfig)
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         check(self.shard_size > 0, "shard_size", f"must be >= 1, got {self.shard_size}")
         check(self.samples > 0 and self.samples % self.shard_size == 0, "samples",
               f"must be a positive multiple of shard_size ({self.shard_size}), got {self.samples}")

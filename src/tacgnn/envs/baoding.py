@@ -36,7 +36,7 @@ import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from tacgnn.config import ConfigError, check
+from tacgnn.config import ConfigError, check, check_seed
 from tacgnn.envs import observation
 from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
 from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
@@ -200,6 +200,7 @@ class BaodingConfig:
 
     def __post_init__(self) -> None:
         check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
+        check_seed(self.seed)
         check(self.max_episode_steps >= 1, "max_episode_steps", "must be >= 1")
         substeps = self.control_dt / self.sim.timestep
         whole = round(substeps) >= 1 and abs(substeps - round(substeps)) < 1e-6

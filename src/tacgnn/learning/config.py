@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from tacgnn.config import check
+from tacgnn.config import check, check_seed
 
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
 
@@ -91,6 +91,7 @@ class PPOConfig:
     """Name of the run: its directory under log_dir, and the run name rsl_rl prints."""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         for key in ("num_envs", "num_steps_per_env", "num_learning_epochs", "num_mini_batches",
                     "save_interval", "torch_threads"):
             check(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")

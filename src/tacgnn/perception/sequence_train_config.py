@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from tacgnn.config import check
+from tacgnn.config import check, check_seed
 from tacgnn.perception.models.temporal import TemporalModelConfig
 
 MAX_THREADS = 256
@@ -56,6 +56,7 @@ class SequenceTrainConfig:
         check(self.window >= 1, "window", f"must be >= 1, got {self.window}")
         check(self.burn_in >= 0, "burn_in", f"must be >= 0, got {self.burn_in}")
         check(self.epochs >= 1, "epochs", f"must be >= 1, got {self.epochs}")
+        check_seed(self.seed)
         check(self.batch_size >= 1, "batch_size", f"must be >= 1, got {self.batch_size}")
         check(self.lr > 0, "lr", f"must be positive, got {self.lr}")
         check(self.weight_decay >= 0, "weight_decay", f"must be >= 0, got {self.weight_decay}")

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from tacgnn.config import check
+from tacgnn.config import check, check_seed
 from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.objectives import OUT_DIM, TaskName
 
@@ -69,6 +69,7 @@ class PerceptionTrainConfig:
     def __post_init__(self) -> None:
         check(self.task in OUT_DIM, "task", f"must be one of {list(OUT_DIM)}, got {self.task!r}")
         check(self.epochs >= 1, "epochs", "must be >= 1")
+        check_seed(self.seed)
         check(self.batch_size >= 1, "batch_size", "must be >= 1")
         check(self.lr > 0, "lr", "must be positive")
         check(0 < self.train_fraction < 1, "train_fraction", "must be in (0, 1)")

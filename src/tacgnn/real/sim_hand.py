@@ -37,7 +37,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from tacgnn.config import check
+from tacgnn.config import check, check_seed
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.observation import target_to_action
 from tacgnn.real.ros import RosConfig, _Node, tactile_message_class
@@ -77,6 +77,7 @@ class SimHandConfig:
     """If > 0, stop after this many seconds (after the step in progress), even before `episodes`."""
 
     def __post_init__(self) -> None:
+        check_seed(self.seed)
         check(self.task in ("simple", "middle", "hard"), "task", f"must be simple, middle or hard, got {self.task!r}")
         check(self.episodes >= 1, "episodes", "must be >= 1")
         check(self.latency_s >= 0, "latency_s", "must be >= 0")
