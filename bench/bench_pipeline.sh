@@ -16,9 +16,7 @@ SEED=${2:-0}
 ITERS=${3:-400}
 DIR=${4:-$(mktemp -d)}
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
-NAME=${MODEL%-temporal}
-RUN=blind_${NAME}$( [ "$NAME" != "$MODEL" ] && echo _temporal || true )_s$SEED
-RESULT=results/table3/${RUN}_model_$(printf %06d "$ITERS").json
+RESULT=results/table3/blind_${MODEL/-/_}_s${SEED}_model_$(printf %06d "$ITERS").json  # the pipeline's naming
 if [ ! -d "$DIR/.git" ]; then
   git clone --quiet "$ROOT" "$DIR"
   rm -f "$DIR/$RESULT"  # the repository's own figure for this run would be printed instead of this one's

@@ -27,7 +27,7 @@ MODEL=${1:?usage: experiments/baoding_pipeline.sh MODEL [SEED] [ITERATIONS]}
 SEED=${2:-0}
 ITERS=${3:-1000}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last, train_gt, offline_perception, stage
+source experiments/lib.sh  # resume, last, train_gt, perception_run, offline_perception, stage
 
 stage teacher
 GT_SIMPLE=runs/gt_s0
@@ -43,20 +43,17 @@ case $MODEL in
     $T make-dataset baoding --policy "$(last $GT 300)" --out $DATA --samples 160000 --shard-size 10000 --seed 1 \
       --keep-every 1 --envs 16 --settle-steps 0 --set task=hold
     PERC=runs/perc/${NAME}_temporal
-    CHANNELS=$( [ $NAME = tacgnn ] && echo "--channels 32" || true )
-    grep -q '"epoch": 19' $PERC/history.json 2>/dev/null || $T train-perception --dataset $DATA --run $PERC \
-      --temporal --model $NAME $CHANNELS --epochs 20 --window 32 --burn-in 200 --set batch_size=16 lr_decay=0.85 \
-      $( [ -f $PERC/checkpoint.pt ] && echo --resume || true )
-    IN_LOOP="model.name=$NAME temporal=true"
-    RUN=runs/blind_${NAME}_temporal_s$SEED ;;
+    perception_run $PERC 20 --dataset $DATA --temporal --model $NAME --window 32 --burn-in 200 \
+      --set batch_size=16 lr_decay=0.85
+    IN_LOOP="model.name=$NAME temporal=true" ;;
   *)
     DATA=data/baoding_teacher
     $T make-dataset baoding --policy "$(last $GT 300)" --out $DATA --samples 50000 --settle-steps 0 --seed 0
     PERC=runs/perc/${MODEL}_s$SEED
     offline_perception $PERC $MODEL $SEED $DATA
-    IN_LOOP="model.name=$MODEL"
-    RUN=runs/blind_${MODEL}_s$SEED ;;
+    IN_LOOP="model.name=$MODEL" ;;
 esac
+RUN=runs/blind_${MODEL/-/_}_s$SEED
 stage blind policy
 if [ ! -f "$(last $RUN $ITERS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold --ppo max_iterations=$ITERS \

@@ -14,13 +14,19 @@ train_gt() {
   .venv/bin/tacgnn train-policy --run-dir $run $(resume $run) --env tactile=false $env --ppo max_iterations=$iters \
     seed=0 $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
 }
+# perception_run RUN EPOCHS ARG...: `tacgnn train-perception --run RUN --epochs EPOCHS ARG...`, skipped
+# when RUN finished those epochs, resumed when RUN holds a checkpoint
+perception_run() {
+  local run=$1 epochs=$2; shift 2
+  grep -q "\"epoch\": $((epochs - 1))" $run/history.json 2>/dev/null && return 0
+  .venv/bin/tacgnn train-perception --run $run --epochs $epochs "$@" $( [ -f $run/checkpoint.pt ] && echo --resume || true )
+}
 # offline_perception RUN MODEL SEED DATASET [SETTING...]: train a Baoding perception for 10 epochs
-# (skipped when RUN finished them, resumed when RUN holds a checkpoint); SETTINGs go to --set
+# (perception_run); SETTINGs go to --set
 offline_perception() {
   local run=$1 model=$2 seed=$3 data=$4; shift 4
-  grep -q '"epoch": 9' $run/history.json 2>/dev/null && return 0
-  .venv/bin/tacgnn train-perception --task baoding --model $model --dataset $data --run $run --epochs 10 \
-    --seed $seed $( [ -f $run/checkpoint.pt ] && echo --resume || true ) $( [ $# -gt 0 ] && echo --set "$@" || true )
+  perception_run $run 10 --task baoding --model $model --dataset $data --seed $seed \
+    $( [ $# -gt 0 ] && echo --set "$@" || true )
 }
 # other_hand K: the env changes of the "other hand" (a stand-in for a real hand), applied K times:
 # K=1 is finger stiffness x0.7, damping x1.5, 0.25 kg balls instead of 0.15, ball and finger
