@@ -3,8 +3,8 @@
 The blind policy's TacGNN learns in the loop from the policy's own recent frames; an
 offline TacGNN-32 (``tacgnn train-perception``, Table II) learns from 50,000 frames of the
 ground-truth policy. Both read frames neither has seen: rollouts of the ground-truth policy
-with another seed. Writes ``docs/perception_generalisation.json`` (overall, touched and
-untouched RMSE in cm, the ratio shipped / offline, provenance).
+with another seed. Writes ``results/perception_generalisation/perception_generalisation.json``
+(overall, touched and untouched RMSE in cm, the ratio shipped / offline, provenance).
 
 The fresh frames (3,000, the teacher dataset's settings, seed 7; every step kept, so that a
 perception with memory reads each episode from its first frame as in the env)::
@@ -50,7 +50,7 @@ def main() -> None:
     parser.add_argument("--dataset", required=True, help="fresh frames of the ground-truth policy")
     parser.add_argument("--offline", required=True, help="an offline TacGNN-32 checkpoint (train-perception)")
     parser.add_argument("--policy", default=str(SHIPPED_POLICY), help="the blind policy (default: the shipped one)")
-    parser.add_argument("--out", default="docs/perception_generalisation.json")
+    parser.add_argument("--out", default="results/perception_generalisation/perception_generalisation.json")
     args = parser.parse_args()
     torch.set_num_threads(1)
     shipped = load_perception(args.policy)

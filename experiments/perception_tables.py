@@ -5,8 +5,10 @@
 Makes the datasets it needs under data/ (resumable; Baoding frames from the shipped
 ground-truth policy, src/tacgnn/assets/baoding_gt_policy.pt, unless --baoding-data names an
 existing dataset), trains every model x seed under
-runs/perception/ (each run resumable), and writes docs/perception_results.md and
-docs/perception_curves.png, with the paper's figures beside ours. `--quick` is a
+runs/perception/ (each run resumable), and writes results/table2/perception_results.md
+(Tables II and I, the robustness table) and results/table2/perception_results.png (learning
+curves), with the paper's figures beside ours; --only-table1 writes
+results/table1/perception_table1.md. `--quick` is a
 smoke-sized version (minutes, not hours) for checking the pipeline.
 """
 
@@ -154,7 +156,7 @@ def main() -> None:
                              "a full run afterwards reuses them and writes the page)")
     parser.add_argument("--only-curve", action="store_true",
                         help="train the dataset-size curve's runs (ball positions, seed 0), write "
-                             "docs/perception_data_curve.md and stop")
+                             "results/table2/perception_data_curve.md and stop")
     parser.add_argument("--models", nargs="+", default=None, metavar="NAME",
                         help="with --only-table1 or --only-curve: train only these models "
                              "(mlp cnn gcn tacgnn-32 tacgnn-64 tacgnn-128)")
@@ -209,14 +211,14 @@ def main() -> None:
         if trained:  # result files carry the command that trained them, not a later --report
             write_table1_results(data, args, seeds)
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
-        atomic_write_text(ROOT / "docs" / f"{page_stem('perception_table1', args)}.md", text)
+        atomic_write_text(ROOT / "results" / "table1" / f"{page_stem('perception_table1', args)}.md", text)
         print(text)
         return
 
     if args.only_curve:
         models = chosen(TABLE1_MODELS, args) if args.models else CURVE_MODELS
         text = "\n".join(lines[:4] + data_curve_lines(data, args, models)) + "\n"
-        atomic_write_text(ROOT / "docs" / f"{page_stem('perception_data_curve', args)}.md", text)
+        atomic_write_text(ROOT / "results" / "table2" / f"{page_stem('perception_data_curve', args)}.md", text)
         print(text)
         return
 
@@ -267,11 +269,13 @@ def main() -> None:
     lines += data_curve_lines(data, args, CURVE_MODELS)
 
     stem = page_stem("perception_results", args)
-    plot_curves(table2, ROOT / "docs" / f"{stem}.png")
-    lines += ["", f"Learning curves (test RMSE per epoch, seed 0): `docs/{stem}.png`.", ""]
-    out = ROOT / "docs" / f"{stem}.md"
+    pages = ROOT / "results" / "table2"
+    pages.mkdir(parents=True, exist_ok=True)
+    plot_curves(table2, pages / f"{stem}.png")
+    lines += ["", f"Learning curves (test RMSE per epoch, seed 0): `results/table2/{stem}.png`.", ""]
+    out = pages / f"{stem}.md"
     atomic_write_text(out, "\n".join(lines))
-    atomic_write_text(ROOT / "docs" / f"{stem}.json", json.dumps(
+    atomic_write_text(pages / f"{stem}.json", json.dumps(
         {row_label(*k): [r["final"] for r in runs] for k, runs in table2.items()}, indent=1))
     print("\n".join(lines))
     print(f"data sets: {[str(p) for p in data.values()]}; metadata seeds "

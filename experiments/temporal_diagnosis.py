@@ -18,7 +18,7 @@ Example::
 
     .venv/bin/python experiments/temporal_diagnosis.py --dataset data/baoding_seq2 \\
         --run runs/temporal2/tacgnn32_temporal --compare runs/temporal2/tacgnn32_single \\
-        --out docs/temporal_diagnosis.json
+        --out results/temporal_perception/temporal_diagnosis.json
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def main() -> None:
     parser.add_argument("--worst", type=int, default=6, help="worst test episodes to describe")
     parser.add_argument("--compare", default="", help="another run on the same split (e.g. the single-frame one)")
     parser.add_argument("--cache", default="", help="predictions file (.pt): read if present, else written")
-    parser.add_argument("--out", default="docs/temporal_diagnosis.json")
+    parser.add_argument("--out", default="results/temporal_perception/temporal_diagnosis.json")
     args = parser.parse_args()
     torch.set_num_threads(1)
 

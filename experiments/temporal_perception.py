@@ -5,17 +5,19 @@ evaluates each on its test episodes (split by episode; every model reads each ep
 its first frame; errors count frames from step 6 on, as the Table II datasets skip the first
 5), and writes:
 
-* ``docs/temporal_perception.json``: per run, overall / touched / untouched position RMSE (cm),
-  the untouched share, the RMSE by steps since the ball last touched a taxel, and the RMSE
-  with a whole skin patch reading 0 (``--lose-patch``, the palm by default);
-* ``docs/fig_blind_area.png``: RMSE against steps since the ball last touched a taxel.
+* ``results/temporal_perception/temporal_perception.json``: per run, overall / touched /
+  untouched position RMSE (cm), the untouched share, the RMSE by steps since the ball last
+  touched a taxel, and the RMSE with a whole skin patch reading 0 (``--lose-patch``, the palm
+  by default);
+* ``results/temporal_perception/fig_blind_area.png``: RMSE against steps since the ball last
+  touched a taxel.
 
 A ball is touched when an activated taxel lies within 3 cm of its centre (radius 2.625 cm).
 
-The data and runs behind docs/fig_blind_area.png (ground-truth hold policy, 16 envs, every
-frame kept, seed 1; 160,000 frames, 1,899 episodes, split 80/20 by episode), each command
-niced on the shared 2-core machine; every model gets the same epochs over the same training
-frames (an epoch puts every training frame into the loss once)::
+The data and runs behind results/temporal_perception/fig_blind_area.png (ground-truth hold
+policy, 16 envs, every frame kept, seed 1; 160,000 frames, 1,899 episodes, split 80/20 by
+episode), each command niced on the shared 2-core machine; every model gets the same epochs
+over the same training frames (an epoch puts every training frame into the loss once)::
 
     tacgnn make-dataset baoding --out data/baoding_seq2 --samples 160000 --shard-size 10000 --seed 1 \\
         --keep-every 1 --envs 16 --settle-steps 0 --policy runs/gt_hold_s0/model_000300.pt --set task=hold
@@ -37,7 +39,8 @@ same arguments otherwise; a resumed run equals an uninterrupted one). The last r
 on data/baoding_seq (30,000 frames, seed 0, 30 epochs, burn-in 200) and is read on the same
 test episodes (the split depends only on the episodes and the seed).
 
-(docs/temporal_perception.json records each run's config, training time and provenance.)
+(results/temporal_perception/temporal_perception.json records each run's config, training time
+and provenance.)
 """
 
 from __future__ import annotations
@@ -124,8 +127,9 @@ def main() -> None:
     parser.add_argument("--runs", nargs="+", required=True, help="run folders holding checkpoint.pt")
     parser.add_argument("--train-error", action="store_true", help="also the error on the training episodes")
     parser.add_argument("--lose-patch", default="palm", help="also the error with this skin patch reading 0 ('' none)")
-    parser.add_argument("--out", default="docs/temporal_perception.json")
-    parser.add_argument("--figure", default="docs/fig_blind_area.png", help="the plot ('' for none)")
+    parser.add_argument("--out", default="results/temporal_perception/temporal_perception.json")
+    parser.add_argument("--figure", default="results/temporal_perception/fig_blind_area.png",
+                        help="the plot ('' for none)")
     parser.add_argument("--ensemble", action="store_true",
                         help="also the mean of the runs' outputs (each ball matched to the first run's), one row")
     args = parser.parse_args()
