@@ -33,6 +33,8 @@ from tacgnn.config import check
 FINGERS = ("index", "middle", "ring", "thumb")
 LINKS = ("base", "proximal", "medial", "distal")
 JOINT_NAMES = tuple(f"{f}_j{k}" for f in FINGERS for k in range(4))
+NUM_JOINTS = len(JOINT_NAMES)
+"""The hand's joint count (16): the one definition every module imports."""
 ACTUATOR_NAMES = tuple(f"{f}_a{k}" for f in FINGERS for k in range(4))
 
 # Joint limits (rad) used by the TacGNN authors for index, middle, ring (j0..j3).
@@ -103,13 +105,13 @@ class HandConfig:
     """Density of the finger links (kg/m^3)."""
 
     def __post_init__(self) -> None:
-        check(len(self.joint_ranges) == 16, "hand.joint_ranges",
-              f"needs 16 (low, high) pairs, got {len(self.joint_ranges)}")
+        check(len(self.joint_ranges) == NUM_JOINTS, "hand.joint_ranges",
+              f"needs {NUM_JOINTS} (low, high) pairs, got {len(self.joint_ranges)}")
         for name, (lo, hi) in zip(JOINT_NAMES, self.joint_ranges):
             check(lo < hi, "hand.joint_ranges", f"joint {name} has low {lo} >= high {hi}")
         if self.target_ranges:
-            check(len(self.target_ranges) == 16, "hand.target_ranges",
-                  f"needs 16 (low, high) pairs or none, got {len(self.target_ranges)}")
+            check(len(self.target_ranges) == NUM_JOINTS, "hand.target_ranges",
+                  f"needs {NUM_JOINTS} (low, high) pairs or none, got {len(self.target_ranges)}")
             for name, (lo, hi), (jlo, jhi) in zip(JOINT_NAMES, self.target_ranges, self.joint_ranges):
                 check(jlo <= lo < hi <= jhi, "hand.target_ranges",
                       f"joint {name}: ({lo}, {hi}) must be increasing and inside its joint range ({jlo}, {jhi})")
