@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The ground-truth teachers of docs/results.md section 1.1, from scratch: Simple (250 it.) -> the
+# The ground-truth teachers of experiments/faithful_hand/README.md, from scratch: Simple (250 it.) -> the
 # hold task (300) -> the gentler squeeze term (300) -> the squeeze charged on the peak force over
 # substeps (300; the shipped teacher), then a longer, smaller-step fine-tune of the peak teacher.
 #
