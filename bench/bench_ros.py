@@ -78,7 +78,7 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
 
     from tacgnn.envs.observation import target_to_action
     from tacgnn.real.controller import BlindController, BlindControllerConfig
-    from tacgnn.real.ros import RosConfig
+    from tacgnn.real.ros_config import RosConfig
     from tacgnn.real.sim_hand import SimHand, SimHandConfig
     from tacgnn.real.skin import SkinCalibration, SkinProcessor
 

@@ -26,8 +26,8 @@ def _trees() -> dict:
     from tacgnn.learning.config import PPOConfig
     from tacgnn.learning.online_perception import OnlinePerceptionConfig
     from tacgnn.perception.train_config import PerceptionTrainConfig
-    from tacgnn.real.ros import RosConfig
-    from tacgnn.tools.sysid import SysIdConfig
+    from tacgnn.real.ros_config import RosConfig
+    from tacgnn.real.sysid import SysIdConfig
 
     return {"env": BaodingConfig(), "grasp": GraspConfig(), "ppo": PPOConfig(),
             "perception": OnlinePerceptionConfig(), "train-perception": PerceptionTrainConfig.for_task("baoding"),

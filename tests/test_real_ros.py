@@ -106,13 +106,14 @@ def test_blind_controller_runs_the_simulated_hand_and_replays_offline(ros_env, c
     assert sum(lags.values()) == steps and set(lags) <= {"none", "0", "1", "2", "3+"}, lags
     assert stats["unpaired_skin"] <= 0.2 * stats["commands"], stats
 
-    from tacgnn.real import ros
     from tacgnn.real.controller import BlindController, BlindControllerConfig
+    from tacgnn.real.ros_config import RosConfig
+    from tacgnn.real.run_bag import replay_run
     from tacgnn.real.skin import SkinCalibration, SkinProcessor
 
     controller = BlindController(BlindControllerConfig(policy=str(policy)))
     processor = SkinProcessor(SkinCalibration.load(calibration), controller.env_config.skin)
-    recorded, replayed = ros.replay_run(tmp_path / "run.bag", ros.RosConfig(), controller, processor)
+    recorded, replayed = replay_run(tmp_path / "run.bag", RosConfig(), controller, processor)
     assert len(recorded) == stats["commands"]
     np.testing.assert_array_equal(replayed, recorded)
 
@@ -129,8 +130,10 @@ def test_bad_input_stops_before_any_command(ros_env, calibration, policy, tmp_pa
     time.sleep(0.5)
     names = "joint_names=[" + ",".join(f"j{i}" for i in range(16)) + "]"
     wrong_names = finish(tacgnn(ros_env, "run", "--calibration", str(calibration), "--set", names, policy=policy))
+    from tacgnn.real.ros_config import RosConfig
+
     swapped = "tactile_fields=[[palm,index_tip_Value],[index_tip,palm_Value]" + "".join(
-        f",[{p},{f}]" for p, f in __import__("tacgnn.real.ros", fromlist=["x"]).RosConfig().tactile_fields[2:]) + "]"
+        f",[{p},{f}]" for p, f in RosConfig().tactile_fields[2:]) + "]"
     wrong_length = finish(tacgnn(ros_env, "run", "--calibration", str(calibration), "--set", swapped, policy=policy))
     hand.terminate()
     finish(hand)

@@ -8,7 +8,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tacgnn.real import ros
+from tacgnn.real.controller_node import IdleCollector
+from tacgnn.real.messages import Latest, stamp_ns
+from tacgnn.real.node import RosNode
+from tacgnn.real.ros_config import ALLEGRO_JOINT_NAMES, RosConfig
+from tacgnn.real.tick import ArrivalTicker, ControlTick, LoopStats
 
 PERIOD_NS = 20_000_000
 
@@ -35,31 +39,31 @@ class CountingController:
         return np.asarray(pos)
 
 
-def make_tick(cfg: ros.RosConfig) -> ros.ControlTick:
-    return ros.ControlTick(cfg, CountingController(), lambda patches: np.zeros(1, np.float32))
+def make_tick(cfg: RosConfig) -> ControlTick:
+    return ControlTick(cfg, CountingController(), lambda patches: np.zeros(1, np.float32))
 
 
 def joint_state(ns: int | None) -> SimpleNamespace:
-    return stamped(ns, name=list(ros.ALLEGRO_JOINT_NAMES), position=[0.1] * 16, velocity=[0.0] * 16)
+    return stamped(ns, name=list(ALLEGRO_JOINT_NAMES), position=[0.1] * 16, velocity=[0.0] * 16)
 
 
-def skin(ns: int | None, cfg: ros.RosConfig) -> SimpleNamespace:
+def skin(ns: int | None, cfg: RosConfig) -> SimpleNamespace:
     return stamped(ns, **{attr: [0.0] for _, attr in cfg.tactile_fields})
 
 
 def test_stamps_in_nanoseconds_ros1_and_ros2():
-    assert ros.stamp_ns(stamped(3_000_000_007)) == 3_000_000_007
+    assert stamp_ns(stamped(3_000_000_007)) == 3_000_000_007
     ros2 = SimpleNamespace(header=SimpleNamespace(stamp=SimpleNamespace(sec=2, nanosec=5)))
-    assert ros.stamp_ns(ros2) == 2_000_000_005
-    assert ros.stamp_ns(stamped(None)) is None
-    assert ros.stamp_ns(stamped(0)) is None  # a driver that does not stamp
+    assert stamp_ns(ros2) == 2_000_000_005
+    assert stamp_ns(stamped(None)) is None
+    assert stamp_ns(stamped(0)) is None  # a driver that does not stamp
 
 
 def test_the_tick_waits_for_the_skin_of_its_joint_states_instant():
     """The joint state arrives before its skin frame: the tick runs when the frame comes, on the
     thread that delivers it; a frame that never comes: the tick runs after the pair window.
     (At 10 Hz with a wide window, so that a loaded test machine's scheduling stays inside it.)"""
-    cfg = ros.RosConfig(rate_hz=10.0, pair_window_s=0.08)
+    cfg = RosConfig(rate_hz=10.0, pair_window_s=0.08)
     period_ns = int(1e9 / cfg.rate_hz)
     tick = make_tick(cfg)
     running = threading.Event()
@@ -71,7 +75,7 @@ def test_the_tick_waits_for_the_skin_of_its_joint_states_instant():
             threads.append(threading.current_thread().name)
         return True
 
-    ticker = ros.ArrivalTicker(cfg, tick.joints, step, ros.LoopStats(), tick.paired, tick.skin)
+    ticker = ArrivalTicker(cfg, tick.joints, step, LoopStats(), tick.paired, tick.skin)
     loop = threading.Thread(target=ticker.run, args=(running.is_set,), name="loop", daemon=True)
     loop.start()
     t = 10 * period_ns
@@ -93,22 +97,22 @@ def test_the_tick_waits_for_the_skin_of_its_joint_states_instant():
 
 
 def test_an_error_in_a_tick_ends_the_loop_on_its_thread():
-    cfg = ros.RosConfig()
-    latest = ros.Latest()
+    cfg = RosConfig()
+    latest = Latest()
     running = threading.Event()
     running.set()
 
     def tick(_arrived):
         raise FloatingPointError("the policy returned non-finite actions")
 
-    ticker = ros.ArrivalTicker(cfg, latest, tick)
+    ticker = ArrivalTicker(cfg, latest, tick)
     threading.Timer(0.01, latest, (joint_state(PERIOD_NS),)).start()
     with pytest.raises(FloatingPointError, match="non-finite"):
         ticker.run(running.is_set)
 
 
 def test_without_stamps_a_frame_newer_than_the_last_tick_pairs():
-    cfg = ros.RosConfig()
+    cfg = RosConfig()
     tick = make_tick(cfg)
     tick.joints(joint_state(None))
     tick.skin(skin(None, cfg))
@@ -120,7 +124,7 @@ def test_without_stamps_a_frame_newer_than_the_last_tick_pairs():
 
 
 def test_a_state_is_answered_once():
-    cfg = ros.RosConfig()
+    cfg = RosConfig()
     tick = make_tick(cfg)
     tick.joints(joint_state(PERIOD_NS))
     tick.skin(skin(PERIOD_NS, cfg))
@@ -129,9 +133,9 @@ def test_a_state_is_answered_once():
     assert tick.controller.steps == 1
 
 
-def fake_node(cfg: ros.RosConfig, running: threading.Event) -> ros._Node:
-    """The loop of `_Node` without ROS behind it."""
-    node = ros._Node.__new__(ros._Node)
+def fake_node(cfg: RosConfig, running: threading.Event) -> RosNode:
+    """The loop of `RosNode` without ROS behind it."""
+    node = RosNode.__new__(RosNode)
     node.cfg = cfg
     node.ok = running.is_set
     node.spin_once = lambda: None
@@ -142,13 +146,13 @@ def test_every_stamped_state_is_ticked_despite_arrival_jitter():
     """States one period apart by their stamps but arriving 0.3 periods late or early (a loaded hand
     or network): none is skipped as 'faster than the control rate'; a state the hand never sent is
     an overrun. (At 10 Hz, so that a loaded test machine's scheduling does not add jitter of its own.)"""
-    cfg = ros.RosConfig(rate_hz=10.0)
+    cfg = RosConfig(rate_hz=10.0)
     period_ns = int(1e9 / cfg.rate_hz)
-    latest = ros.Latest()
+    latest = Latest()
     running = threading.Event()
     running.set()
     ticked: list[int] = []
-    stats = ros.LoopStats(commands=1)
+    stats = LoopStats(commands=1)
     sent = [k for k in range(12) if k != 7]  # state 7 is lost
     jitter = cfg.period * np.array([0.0, 0.3, -0.3, 0.3, 0.0, -0.3, 0.3, 0.0, -0.3, 0.0, 0.3, 0.0])
 
@@ -182,7 +186,7 @@ def test_garbage_is_collected_between_ticks_only():
     class Node:
         pass
 
-    collector = ros.IdleCollector()
+    collector = IdleCollector()
     seen: list[int] = []
 
     def record(phase, info):

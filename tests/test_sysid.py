@@ -7,8 +7,8 @@ from tacgnn.cli import main as cli_main
 from tacgnn.config import ConfigError, load_yaml
 from tacgnn.envs.baoding import BAODING_RANGES, BaodingConfig
 from tacgnn.hand.allegro import JOINT_NAMES, HandConfig
-from tacgnn.tools.joint_recording import JointRecording, RecordingError, csv_columns, load_recording, save_recording
-from tacgnn.tools.sysid import StepProtocol, StepReplay, SysIdConfig, SysIdGrid, identify, make_recording, write_outputs
+from tacgnn.real.joint_recording import JointRecording, RecordingError, csv_columns, load_recording, save_recording
+from tacgnn.real.sysid import StepProtocol, StepReplay, SysIdConfig, SysIdGrid, identify, make_recording, write_outputs
 
 GRID = SysIdGrid()  # the authors' {1, 3, 5} x {0, 0.1, 0.5}
 CONTACT_FREE = StepProtocol(levels_deg=(0.0, 5.0, 10.0, 20.0, 30.0))
@@ -155,7 +155,7 @@ def test_cli_makes_a_recording_and_identifies_it(tmp_path, capsys):
 # --- beyond the grid: least squares with mujoco.sysid, confidence intervals -----------------
 def test_refined_gains_off_the_grid_lie_inside_their_intervals():
     pytest.importorskip("mujoco.sysid", reason="needs the 'sysid' extra (mujoco[sysid])")
-    from tacgnn.tools.sysid_refine import RefineConfig, refine
+    from tacgnn.real.sysid_refine import RefineConfig, refine
 
     rng = np.random.default_rng(3)
     k, d = rng.uniform(1.5, 4.5, 16).round(3), rng.uniform(0.05, 0.4, 16).round(3)  # off the grid
@@ -172,7 +172,7 @@ def test_refined_gains_off_the_grid_lie_inside_their_intervals():
 
 def test_step_recording_round_trips_through_a_ros_bag(tmp_path):
     from tacgnn.real.bag import BagWriter
-    from tacgnn.real.ros import ALLEGRO_JOINT_NAMES, RosConfig
+    from tacgnn.real.ros_config import ALLEGRO_JOINT_NAMES, RosConfig
 
     rec = make_recording(3.0, 0.1, StepProtocol(levels_deg=(0.0, 20.0), hold_steps=10))
     ros = RosConfig()

@@ -19,7 +19,7 @@ if OUT and "real-hand" in sys.argv and "run" in sys.argv:
 
     from tacgnn.envs import observation
     from tacgnn.learning import online_perception
-    from tacgnn.real import controller, kinematics, ros, skin
+    from tacgnn.real import controller, kinematics, skin, tick
 
     clock = time.perf_counter
     ticks: list[dict[str, float]] = []
@@ -36,17 +36,17 @@ if OUT and "real-hand" in sys.argv and "run" in sys.argv:
                 current[stage] = current.get(stage, 0.0) + clock() - start
         setattr(owner, name, wrapper)
 
-    tick_call = ros.ControlTick.__call__
+    tick_call = tick.ControlTick.__call__
 
-    def tick(self):
+    def timed_tick(self):
         current.clear()
         current["_start"] = start = clock()
         out = tick_call(self)
         current["tick_body"] = clock() - start
         return out
-    ros.ControlTick.__call__ = tick
-    timed(ros, "decode_joint_state", "decode_joint_state")
-    timed(ros, "decode_tactile", "decode_skin")
+    tick.ControlTick.__call__ = timed_tick
+    timed(tick, "decode_joint_state", "decode_joint_state")
+    timed(tick, "decode_tactile", "decode_skin")
     timed(skin.SkinProcessor, "__call__", "skin_calibration")
     timed(kinematics.TaxelKinematics, "positions", "kinematics")
     timed(online_perception.OnlinePerception, "__call__", "perception_network")

@@ -1,7 +1,8 @@
 """ROS 1 bags of the hand's topics, written and read with the `rosbags` package (no ROS needed).
 
 What `tacgnn real-hand record-steps`, `record-skin` and `run --record` write, and what
-`tacgnn sysid`, `tacgnn calibrate-skin` and `replay_run` read:
+`tacgnn sysid`, `tacgnn calibrate-skin` and `replay_run` read (each of those decodes the
+messages itself: this module knows bags, not the hand, and imports nothing of tacgnn):
 
 * step recordings: the joint states as received and the joint commands as sent; sample
   t of the `JointRecording` is command t with the newest joint state received before it;
@@ -182,53 +183,3 @@ def read_bag(path: str | Path, topics: dict[str, str]) -> dict[str, list[BagMess
     finally:
         reader.close()
     return out
-
-
-def joint_recording_from_bag(path: str | Path, joint_state_topic: str, command_topic: str,
-                             joint_names: tuple[str, ...]):
-    """The `JointRecording` of a step bag: each command with the newest joint state before it."""
-    from tacgnn.real.ros import decode_joint_state
-    from tacgnn.tools.joint_recording import JointRecording, RecordingError
-
-    msgs = read_bag(path, {"joint states": joint_state_topic, "joint commands": command_topic})
-    states, commands = msgs[joint_state_topic], msgs[command_topic]
-    state_times = np.array([m.time for m in states])
-    times, targets, measured = [], [], []
-    for cmd in commands:
-        i = np.searchsorted(state_times, cmd.time, side="right") - 1
-        if i < 0:
-            continue  # commands before the first joint state have nothing measured
-        try:
-            measured.append(decode_joint_state(states[i].msg, joint_names)[0])
-            targets.append(decode_joint_state(cmd.msg, joint_names)[0])
-        except ValueError as err:
-            raise RecordingError(f"recording {path}: {err}") from err
-        times.append(cmd.time)
-    if len(times) < 2:
-        raise RecordingError(f"recording {path}: fewer than 2 commands after the first joint state")
-    t = np.asarray(times)
-    return JointRecording(t - t[0], np.asarray(targets), np.asarray(measured), source=str(path))
-
-
-def skin_frames_from_bag(path: str | Path, tactile_topic: str, fields: tuple[tuple[str, str], ...],
-                         layout) -> np.ndarray:
-    """(N, T) raw frames (driver order) from the skin messages of a bag, validated per patch."""
-    from tacgnn.real.ros import decode_tactile
-    from tacgnn.real.skin import CalibrationError
-
-    msgs = read_bag(path, {"skin": tactile_topic})[tactile_topic]
-    if not msgs:
-        raise CalibrationError(f"skin frames {path}: no messages on {tactile_topic}")
-    sizes = {p.name: p.size for p in layout.patches}
-    frames = []
-    for k, m in enumerate(msgs):
-        try:
-            patches = decode_tactile(m.msg, fields)
-        except ValueError as err:
-            raise CalibrationError(f"skin frames {path}: message {k}: {err}") from err
-        for name, arr in patches.items():
-            if arr.size != sizes[name]:
-                raise CalibrationError(f"skin frames {path}: message {k}: patch '{name}' has {arr.size} values, "
-                                       f"the skin layout has {sizes[name]}")
-        frames.append(np.concatenate([patches[p.name] for p in layout.patches]))
-    return np.asarray(frames, dtype=np.float64)

@@ -63,10 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run one action; user errors (bad files, messages, missing ROS) print one line and return 2."""
     from tacgnn.config import override, parse_overrides
-    from tacgnn.real import ros
+    from tacgnn.real.ros_config import RosConfig
 
     logging.basicConfig(level=logging.INFO, format="[tacgnn] %(message)s")
-    cfg = ros.RosConfig(ros_version=args.ros)
+    cfg = RosConfig(ros_version=args.ros)
     if args.set:
         cfg = override(cfg, parse_overrides(args.set))
     try:
@@ -88,10 +88,10 @@ def _policy(args) -> str:
 
 def _action(args, cfg) -> int:
     from tacgnn.config import ConfigError
-    from tacgnn.real import ros
 
     if args.action == "run":
         from tacgnn.real.controller import BlindController, BlindControllerConfig
+        from tacgnn.real.controller_node import run_controller
         from tacgnn.real.skin import SkinCalibration, SkinProcessor
 
         if not args.calibration:
@@ -100,20 +100,24 @@ def _action(args, cfg) -> int:
         controller = BlindController(BlindControllerConfig(policy=_policy(args), max_step_rad=args.max_step_rad,
                                                            max_target_rate=args.max_target_rate))
         processor = SkinProcessor(calibration, controller.env_config.skin)
-        stats = ros.run_controller(cfg, controller, processor, duration_s=args.duration, record=args.record,
-                                   stats_path=args.stats)
+        stats = run_controller(cfg, controller, processor, duration_s=args.duration, record=args.record,
+                               stats_path=args.stats)
         print(f"{stats.ticks} ticks, {stats.commands} commands, {stats.missed} missed "
-              f"({stats.held} held on stale data, {stats.overruns} overruns), {stats.episodes} episodes")
+              f"({stats.held} held on stale data, {stats.overruns} overruns), {stats.episodes} episodes; "
+              f"malformed messages dropped: {stats.malformed_joint_states} joint states, {stats.malformed_skin} skin")
     elif args.action == "record-steps":
         from tacgnn.hand.allegro import HandConfig
-        from tacgnn.tools.sysid import StepProtocol
+        from tacgnn.real.collect import record_steps
+        from tacgnn.real.sysid import StepProtocol
 
         protocol = StepProtocol(tuple(args.levels_deg), args.hold_steps, sequential=not args.together)
         targets = protocol.targets(HandConfig())
         print(f"commanding {len(targets)} steps ({len(targets) / cfg.rate_hz:.0f} s)")
-        print(f"wrote {ros.record_steps(cfg, targets, args.out)}")
+        print(f"wrote {record_steps(cfg, targets, args.out)}")
     elif args.action == "record-skin":
-        print(f"wrote {ros.record_skin(cfg, args.frames, args.out)}")
+        from tacgnn.real.collect import record_skin
+
+        print(f"wrote {record_skin(cfg, args.frames, args.out)}")
     else:
         from tacgnn.learning.policy import load_policy
         from tacgnn.real.sim_hand import SimHand, SimHandConfig

@@ -32,11 +32,11 @@ import torch
 from tacgnn.config import check
 from tacgnn.envs import observation
 from tacgnn.envs.baoding import ordered_balls
-from tacgnn.hand.allegro import JOINT_NAMES
+from tacgnn.hand.allegro import JOINT_NAMES, NUM_JOINTS
 from tacgnn.learning.policy import SHIPPED_POLICY
 from tacgnn.real.kinematics import TaxelKinematics
+from tacgnn.real.safety_log import SafetyLog
 
-NUM_JOINTS = len(JOINT_NAMES)
 BLIND_MODES = ("perceived", "no_perception")
 log = logging.getLogger("tacgnn.real")
 
@@ -58,25 +58,6 @@ class BlindControllerConfig:
         check(self.torch_threads >= 1, "torch_threads", "must be >= 1")
         check(self.max_step_rad >= 0, "max_step_rad", f"must be >= 0, got {self.max_step_rad}")
         check(self.max_target_rate >= 0, "max_target_rate", f"must be >= 0, got {self.max_target_rate}")
-
-
-class SafetyLog:
-    """One log line when a safety rule starts acting and one when it stops, not one per tick."""
-
-    def __init__(self, logger: logging.Logger = log):
-        self.log = logger
-        self.active: dict[str, int] = {}
-        self.total: dict[str, int] = {}
-
-    def note(self, rule: str, acting: bool, message: str) -> None:
-        if acting:
-            if rule not in self.active:
-                self.log.warning("%s", message)
-                self.active[rule] = 0
-            self.active[rule] += 1
-            self.total[rule] = self.total.get(rule, 0) + 1
-        elif rule in self.active:
-            self.log.warning("%s: released after %d ticks", rule, self.active.pop(rule))
 
 
 class OneHand:

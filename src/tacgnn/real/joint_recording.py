@@ -3,7 +3,7 @@
 A recording is what the hand did under a sequence of position commands, sampled at the
 control rate (50 Hz on the Allegro hand). Sample t holds the joint angles measured at
 ``time[t]`` and the targets sent right after that measurement, in force until ``time[t+1]``.
-The replay (`tacgnn.tools.sysid`) starts at rest at ``measured[0]``, so start recording
+The replay (`tacgnn.real.sysid`) starts at rest at ``measured[0]``, so start recording
 with the hand still.
 
 Three file formats, the same content:
@@ -37,9 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from tacgnn.hand.allegro import JOINT_NAMES
+from tacgnn.files import atomic_write, atomic_write_text
+from tacgnn.hand.allegro import JOINT_NAMES, NUM_JOINTS
+from tacgnn.real.bag import BagError, read_bag
+from tacgnn.real.messages import decode_joint_state
+from tacgnn.real.ros_config import RosConfig
 
-NUM_JOINTS = len(JOINT_NAMES)
 MAX_PERIOD_JITTER = 0.25
 """Largest allowed |dt - median dt| / median dt: the replay steps at one fixed period."""
 
@@ -129,14 +132,34 @@ def load_recording(path: str | Path) -> JointRecording:
 
 def _read_bag(path: Path) -> JointRecording:
     """A ROS 1 bag of `tacgnn real-hand record-steps`, on the Allegro driver's default topics."""
-    from tacgnn.real.bag import BagError, joint_recording_from_bag
-    from tacgnn.real.ros import RosConfig
-
     ros = RosConfig()
     try:
         return joint_recording_from_bag(path, ros.joint_state_topic, ros.joint_cmd_topic, ros.joint_names)
     except BagError as err:
         raise RecordingError(str(err)) from err
+
+
+def joint_recording_from_bag(path: str | Path, joint_state_topic: str, command_topic: str,
+                             joint_names: tuple[str, ...]) -> JointRecording:
+    """The `JointRecording` of a step bag: each command with the newest joint state before it."""
+    msgs = read_bag(path, {"joint states": joint_state_topic, "joint commands": command_topic})
+    states, commands = msgs[joint_state_topic], msgs[command_topic]
+    state_times = np.array([m.time for m in states])
+    times, targets, measured = [], [], []
+    for cmd in commands:
+        i = np.searchsorted(state_times, cmd.time, side="right") - 1
+        if i < 0:
+            continue  # commands before the first joint state have nothing measured
+        try:
+            measured.append(decode_joint_state(states[i].msg, joint_names)[0])
+            targets.append(decode_joint_state(cmd.msg, joint_names)[0])
+        except ValueError as err:
+            raise RecordingError(f"recording {path}: {err}") from err
+        times.append(cmd.time)
+    if len(times) < 2:
+        raise RecordingError(f"recording {path}: fewer than 2 commands after the first joint state")
+    t = np.asarray(times)
+    return JointRecording(t - t[0], np.asarray(targets), np.asarray(measured), source=str(path))
 
 
 def _read_npz(path: Path) -> dict:
@@ -193,14 +216,15 @@ def save_recording(rec: JointRecording, path: str | Path) -> Path:
     suffix = path.suffix.lower()
     if suffix == ".npz":
         extra = {k: getattr(rec, k) for k in ("true_stiffness", "true_damping") if getattr(rec, k) is not None}
-        np.savez(path, time=rec.time, target=rec.target, measured=rec.measured, **extra)
+        atomic_write(path, lambda fh: np.savez(fh, time=rec.time, target=rec.target, measured=rec.measured, **extra))
     elif suffix == ".csv":
         table = np.concatenate([rec.time[:, None], rec.target, rec.measured], axis=1)
-        with path.open("w", newline="") as fh:
-            fh.write("# tacgnn joint recording: time s, targets and measured joint angles rad\n")
-            writer = csv.writer(fh)
-            writer.writerow(csv_columns())
-            writer.writerows([[repr(float(v)) for v in row] for row in table])
+        text = io.StringIO(newline="")
+        text.write("# tacgnn joint recording: time s, targets and measured joint angles rad\n")
+        writer = csv.writer(text)
+        writer.writerow(csv_columns())
+        writer.writerows([[repr(float(v)) for v in row] for row in table])
+        atomic_write_text(path, text.getvalue())
     else:
         raise RecordingError(f"recording {path}: unknown format '{suffix}' (use .npz or .csv)")
     return path

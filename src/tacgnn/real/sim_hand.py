@@ -40,7 +40,10 @@ import numpy as np
 from tacgnn.config import check, check_seed
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.observation import target_to_action
-from tacgnn.real.ros import RosConfig, _Node, tactile_message_class
+from tacgnn.files import atomic_write_text
+from tacgnn.real.messages import decode_joint_state, stamp_ns, tactile_message_class
+from tacgnn.real.node import RosNode
+from tacgnn.real.ros_config import RosConfig
 
 log = logging.getLogger("tacgnn.real")
 
@@ -154,7 +157,7 @@ class SimHand:
 
     def run(self, summary_path: str | Path | None = None) -> dict:
         cfg, ros, env = self.cfg, self.ros, self.env
-        node = _Node(ros, "tacgnn_sim_hand")
+        node = RosNode(ros, "tacgnn_sim_hand")
         tactile_cls = tactile_message_class(ros)
         skin_stamped = "header" in getattr(tactile_cls, "__slots__", ())
         pub_joints = node.publisher(ros.joint_state_topic, node.JointState)
@@ -168,8 +171,6 @@ class SimHand:
         response_s: list[float] = []
 
         def on_command(msg):
-            from tacgnn.real.ros import decode_joint_state, stamp_ns
-
             now = time.monotonic()
             stamp = stamp_ns(msg)
             k = -1 if stamp is None else int(round((stamp - base_ns) / period_ns))
@@ -282,7 +283,7 @@ class SimHand:
                                   for q, v in (("p50", 50), ("p99", 99), ("max", 100))}
         if summary_path:
             Path(summary_path).parent.mkdir(parents=True, exist_ok=True)
-            Path(summary_path).write_text(json.dumps(summary, indent=1))
+            atomic_write_text(summary_path, json.dumps(summary, indent=1))
         node.shutdown("simulated hand done")
         return summary
 

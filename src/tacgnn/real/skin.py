@@ -29,7 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tacgnn.files import atomic_write
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
+from tacgnn.real.bag import BagError, read_bag
+from tacgnn.real.messages import decode_tactile
+from tacgnn.real.ros_config import RosConfig
 
 
 class CalibrationError(ValueError):
@@ -88,9 +92,9 @@ class SkinCalibration:
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(path, baseline=self.baseline, threshold=self.threshold, gain=self.gain, dead=self.dead,
-                 order=self.order, patch_names=np.array(self.patch_names, dtype=str),
-                 patch_sizes=np.array(self.patch_sizes, dtype=np.int64))
+        atomic_write(path, lambda fh: np.savez(
+            fh, baseline=self.baseline, threshold=self.threshold, gain=self.gain, dead=self.dead, order=self.order,
+            patch_names=np.array(self.patch_names, dtype=str), patch_sizes=np.array(self.patch_sizes, dtype=np.int64)))
         return path
 
     @classmethod
@@ -239,7 +243,7 @@ def load_raw_frames(path: str | Path, layout: SkinLayout | None = None) -> np.nd
     """(N, T) raw frames in driver order from a ROS 1 bag or an .npz of per-patch arrays.
 
     A .bag holds the skin messages (``tacgnn real-hand record-skin``, default topic and
-    fields of `tacgnn.real.ros.RosConfig`); an .npz one (N, patch size) array per patch,
+    fields of `tacgnn.real.ros_config.RosConfig`); an .npz one (N, patch size) array per patch,
     named by patch, or a single (N, T) array named ``raw``.
     """
     layout = layout or default_skin()
@@ -279,11 +283,30 @@ def load_raw_frames(path: str | Path, layout: SkinLayout | None = None) -> np.nd
 
 
 def _frames_from_bag(path: Path, layout: SkinLayout) -> np.ndarray:
-    from tacgnn.real.bag import BagError, skin_frames_from_bag
-    from tacgnn.real.ros import RosConfig
-
+    """A bag of skin messages on the Allegro skin's default topic and fields (`RosConfig`)."""
     ros = RosConfig()
     try:
         return skin_frames_from_bag(path, ros.tactile_topic, ros.tactile_fields, layout)
     except BagError as err:
         raise CalibrationError(str(err)) from err
+
+
+def skin_frames_from_bag(path: str | Path, tactile_topic: str, fields: tuple[tuple[str, str], ...],
+                         layout: SkinLayout) -> np.ndarray:
+    """(N, T) raw frames (driver order) from the skin messages of a bag, validated per patch."""
+    msgs = read_bag(path, {"skin": tactile_topic})[tactile_topic]
+    if not msgs:
+        raise CalibrationError(f"skin frames {path}: no messages on {tactile_topic}")
+    sizes = {p.name: p.size for p in layout.patches}
+    frames = []
+    for k, m in enumerate(msgs):
+        try:
+            patches = decode_tactile(m.msg, fields)
+        except ValueError as err:
+            raise CalibrationError(f"skin frames {path}: message {k}: {err}") from err
+        for name, arr in patches.items():
+            if arr.size != sizes[name]:
+                raise CalibrationError(f"skin frames {path}: message {k}: patch '{name}' has {arr.size} values, "
+                                       f"the skin layout has {sizes[name]}")
+        frames.append(np.concatenate([patches[p.name] for p in layout.patches]))
+    return np.asarray(frames, dtype=np.float64)

@@ -31,10 +31,11 @@ import numpy as np
 import yaml
 
 from tacgnn.config import check, to_dict
-from tacgnn.hand.allegro import JOINT_NAMES, HandConfig
+from tacgnn.files import atomic_write_text
+from tacgnn.hand.allegro import JOINT_NAMES, NUM_JOINTS, HandConfig
+from tacgnn.real.joint_recording import JointRecording
 from tacgnn.sim.batched import BatchedSim
 from tacgnn.sim.scene import SimConfig, hand_scene
-from tacgnn.tools.joint_recording import NUM_JOINTS, JointRecording
 
 JOINTS_PER_FINGER = 4
 
@@ -286,8 +287,9 @@ def write_outputs(result: SysIdResult, rec: JointRecording, out: str | Path, bas
     """Write the hand config (a Baoding config fragment) to `out` and the report beside it.
 
     `out` loads with ``tacgnn <command> --config out.yaml``; the report is
-    ``<out stem>.report.yaml``. With `refined` (a `sysid_refine.RefineResult`) the hand
-    takes the refined gains and the report adds their intervals.
+    ``<out stem>.report.yaml``. With `refined` (a `sysid_refine.RefineResult`: passed in, not
+    imported, as that module builds on this one) the hand takes the refined gains and the report
+    adds their intervals.
     """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -296,15 +298,13 @@ def write_outputs(result: SysIdResult, rec: JointRecording, out: str | Path, bas
         damping=tuple(float(f"{v:.4g}") for v in refined.damping))
     header = (f"# Hand identified by tacgnn sysid from {rec.source}.\n"
               "# Use with: tacgnn <command> --config this.yaml  (a Baoding config with only 'hand' set)\n")
-    out.write_text(header + yaml.safe_dump({"hand": to_dict(hand)}, sort_keys=False, default_flow_style=None,
-                                          width=120))
+    atomic_write_text(out, header + yaml.safe_dump({"hand": to_dict(hand)}, sort_keys=False,
+                                                   default_flow_style=None, width=120))
     report_path = out.with_name(f"{out.stem}.report.yaml")
     content = report(result, rec)
     if refined is not None:
-        from tacgnn.tools.sysid_refine import refine_report
-
-        content["refined"] = refine_report(refined)
-    report_path.write_text(yaml.safe_dump(content, sort_keys=False, default_flow_style=None, width=120))
+        content["refined"] = refined.report()
+    atomic_write_text(report_path, yaml.safe_dump(content, sort_keys=False, default_flow_style=None, width=120))
     return out, report_path
 
 

@@ -1,6 +1,6 @@
 """System identification beyond the grid: per-joint least squares with MuJoCo's `mujoco.sysid`.
 
-The grid search (`tacgnn.tools.sysid.identify`) can only return values it tried. Starting
+The grid search (`tacgnn.real.sysid.identify`) can only return values it tried. Starting
 from its best pairs, this fits all 32 gains (stiffness and damping of each joint) to
 the recording by nonlinear least squares: residuals are simulated minus measured joint
 angles over the whole recording, every simulation of a batch (the finite-difference
@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from tacgnn.config import check
-from tacgnn.hand.allegro import JOINT_NAMES
-from tacgnn.tools.joint_recording import NUM_JOINTS, JointRecording
-from tacgnn.tools.sysid import JOINTS_PER_FINGER, StepReplay, SysIdConfig
+from tacgnn.hand.allegro import JOINT_NAMES, NUM_JOINTS
+from tacgnn.real.joint_recording import JointRecording
+from tacgnn.real.sysid import JOINTS_PER_FINGER, StepReplay, SysIdConfig
 
 DIVERGED_RESIDUAL = 10.0
 """Residual (rad) given to samples of a diverged simulation: large, finite, so the optimizer backs off."""
@@ -80,6 +80,17 @@ class RefineResult:
         """(16,) whether each joint's (stiffness, damping) lies inside both its intervals."""
         k, d = self.stiffness_interval, self.damping_interval
         return (k[:, 0] <= stiffness) & (stiffness <= k[:, 1]) & (d[:, 0] <= damping) & (damping <= d[:, 1])
+
+    def report(self) -> dict:
+        """Per joint: fit and interval, for the report YAML (`sysid.write_outputs` adds it)."""
+        return {"method": "least squares (mujoco.sysid, MuJoCo's minimize) from the grid's best",
+                "confidence": f"{100 * (1 - self.alpha):.0f} % simultaneous per joint (Bonferroni over its two gains)",
+                "joints": {name: {"stiffness": float(self.stiffness[j]),
+                                  "stiffness_interval": [float(v) for v in self.stiffness_interval[j]],
+                                  "damping": float(self.damping[j]),
+                                  "damping_interval": [float(v) for v in self.damping_interval[j]],
+                                  "rms_error_deg": round(float(np.rad2deg(self.rms[j])), 5)}
+                           for j, name in enumerate(JOINT_NAMES)}}
 
 
 def _sysid():
@@ -161,15 +172,3 @@ def refine_summary(result: RefineResult, rec: JointRecording) -> str:
     if inside is not None:
         lines.append(f"truth inside the {level} intervals for {int(inside.sum())} of {NUM_JOINTS} joints")
     return "\n".join(lines)
-
-
-def refine_report(result: RefineResult) -> dict:
-    """Per joint: fit and interval, for the report YAML."""
-    return {"method": "least squares (mujoco.sysid, MuJoCo's minimize) from the grid's best",
-            "confidence": f"{100 * (1 - result.alpha):.0f} % simultaneous per joint (Bonferroni over its two gains)",
-            "joints": {name: {"stiffness": float(result.stiffness[j]),
-                              "stiffness_interval": [float(v) for v in result.stiffness_interval[j]],
-                              "damping": float(result.damping[j]),
-                              "damping_interval": [float(v) for v in result.damping_interval[j]],
-                              "rms_error_deg": round(float(np.rad2deg(result.rms[j])), 5)}
-                       for j, name in enumerate(JOINT_NAMES)}}
