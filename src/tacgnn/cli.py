@@ -303,8 +303,8 @@ def cmd_sysid(args) -> int:
     from dataclasses import replace
 
     from tacgnn.envs.baoding import BAODING_RANGES, BaodingConfig
-    from tacgnn.tools import sysid
-    from tacgnn.tools.joint_recording import load_recording, save_recording
+    from tacgnn.real import sysid
+    from tacgnn.real.joint_recording import load_recording, save_recording
 
     grid = sysid.SysIdGrid(tuple(args.stiffness), tuple(args.damping))
     cfg = sysid.SysIdConfig(grid=grid, refine_passes=args.refine_passes)
@@ -335,7 +335,7 @@ def cmd_sysid(args) -> int:
     print(sysid.summary(result, rec))
     refined = None
     if args.refine:
-        from tacgnn.tools.sysid_refine import refine, refine_summary
+        from tacgnn.real.sysid_refine import refine, refine_summary
 
         start = time.perf_counter()
         refined = refine(rec, result.stiffness, result.damping, cfg)
@@ -498,7 +498,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(fn=cmd_eval_perception)
 
     p = sub.add_parser("sysid", help="identify per-joint stiffness/damping from a position-step recording")
-    p.add_argument("recording", nargs="?", help=".npz or .csv recording (format: tacgnn.tools.joint_recording)")
+    p.add_argument("recording", nargs="?", help=".npz or .csv recording (format: tacgnn.real.joint_recording)")
     p.add_argument("--out", default="outputs/sysid_hand.yaml", help="hand config YAML; the report goes beside it")
     p.add_argument("--stiffness", type=float, nargs="+", default=[1.0, 3.0, 5.0], help="grid of kp (N m/rad)")
     p.add_argument("--damping", type=float, nargs="+", default=[0.0, 0.1, 0.5], help="grid of damping (N m s/rad)")
