@@ -38,9 +38,9 @@ from gymnasium.vector import AutoresetMode
 
 from tacgnn.config import ConfigError, check, check_seed
 from tacgnn.envs import observation
-from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
+from tacgnn.envs.base import HandEnvBase
 from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
-from tacgnn.hand.allegro import FINGER_RANGES, THUMB_BAODING_RANGES, HandConfig
+from tacgnn.hand.allegro import FINGER_RANGES, NUM_JOINTS, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.backend import SkinArray, skin_positions, skin_readings
 from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame

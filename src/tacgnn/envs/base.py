@@ -16,12 +16,10 @@ import mujoco
 import numpy as np
 
 from tacgnn.envs import observation
-from tacgnn.hand.allegro import HandConfig
+from tacgnn.hand.allegro import NUM_JOINTS, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout
 from tacgnn.sim.backend import SkinArray, make_sim, make_tactile, skin_positions, skin_readings, skin_to_host
 from tacgnn.sim.scene import SimConfig, compile_with_skin
-
-NUM_JOINTS = 16
 
 
 class HandEnvBase:

@@ -25,8 +25,8 @@ import mujoco
 import numpy as np
 
 from tacgnn.config import check
-from tacgnn.envs.base import NUM_JOINTS, HandEnvBase
-from tacgnn.hand.allegro import OBJECT_CONAFFINITY, OBJECT_CONTYPE, HandConfig
+from tacgnn.envs.base import HandEnvBase
+from tacgnn.hand.allegro import NUM_JOINTS, OBJECT_CONAFFINITY, OBJECT_CONTYPE, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, hand_scene, palm_frame
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tacgnn.envs.base import NUM_JOINTS
+from tacgnn.hand.allegro import NUM_JOINTS
 
 
 class FingerWave:
