@@ -94,8 +94,12 @@ def run_pair(env, tmp: Path, calibration: Path, policy: Path, episodes: int = 2,
 
 
 def test_blind_controller_runs_the_simulated_hand_and_replays_offline(ros_env, calibration, policy, tmp_path):
-    hand, stats, _ = run_pair(ros_env, tmp_path, calibration, policy, run_args=("--record", str(tmp_path / "run.bag")))
+    hand, stats, out = run_pair(ros_env, tmp_path, calibration, policy,
+                                run_args=("--record", str(tmp_path / "run.bag")))
     assert hand["episodes"] == 2 and 0.0 <= hand["success_rate"] <= 1.0
+    # the node's log lines reach the terminal after rospy.init_node sent the root logger to its file
+    assert "joint states and skin frames check out" in out, out
+    assert stats["malformed_dropped"] == {"joint_states": 0, "skin": 0}, stats
     steps = sum(r["steps"] for r in hand["results"])
     # about one command per step of the hand (a loaded machine misses some ticks: the hand then holds)
     assert stats["episodes"] == 2 and stats["commands"] >= 0.8 * steps, stats
