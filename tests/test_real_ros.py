@@ -122,11 +122,16 @@ def test_blind_controller_runs_the_simulated_hand_and_replays_offline(ros_env, c
     np.testing.assert_array_equal(replayed, recorded)
 
 
-def test_latency_and_dropped_skin_messages_are_survived(ros_env, calibration, policy, tmp_path):
+def test_latency_dropped_skin_messages_and_malformed_joint_states_are_survived(ros_env, calibration, policy,
+                                                                               tmp_path):
     hand, stats, out = run_pair(ros_env, tmp_path, calibration, policy, episodes=1,
-                                hand_args=("--latency-ms", "20", "--drop-tactile", "0.05"))
+                                hand_args=("--latency-ms", "20", "--drop-tactile", "0.05",
+                                           "--stray-joint-states", "0.1"))
     assert hand["episodes"] == 1 and "success_rate" in hand
     assert stats["commands"] > 0
+    # the stray states are dropped and counted, never in a row long enough to stop the run
+    assert stats["malformed_dropped"]["joint_states"] > 0, stats
+    assert "malformed joint state on /allegroHand_0/joint_states dropped" in out, out
 
 
 def test_bad_input_stops_before_any_command(ros_env, calibration, policy, tmp_path):

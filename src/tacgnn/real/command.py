@@ -52,6 +52,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--latency-ms", type=float, default=0.0, help="delay of every message the hand sends")
     g.add_argument("--drop-tactile", type=float, default=0.0, help="fraction of skin messages lost")
     g.add_argument("--drop-joint-states", type=float, default=0.0, help="fraction of joint states lost")
+    g.add_argument("--stray-joint-states", type=float, default=0.0,
+                   help="fraction of steps whose joint state is followed by a malformed one (NaN angles)")
     g.add_argument("--joint-noise-deg", type=float, default=0.0, help="std of noise on the joint angles")
     g.add_argument("--skin-noise", type=float, default=0.0, help="std of noise on the raw skin values")
     g.add_argument("--dead-taxels", type=float, default=0.0, help="fraction of taxels that always send 0")
@@ -125,6 +127,7 @@ def _action(args, cfg) -> int:
         _, env_config = load_policy(_policy(args))
         hand = SimHandConfig(task=args.task, episodes=args.episodes, seed=args.seed, latency_s=args.latency_ms / 1e3,
                              drop_tactile=args.drop_tactile, drop_joint_states=args.drop_joint_states,
+                             stray_joint_states=args.stray_joint_states,
                              joint_noise_rad=float(args.joint_noise_deg) * 3.141592653589793 / 180,
                              skin_noise=args.skin_noise, dead_taxels=args.dead_taxels, rest_steps=args.rest_steps,
                              duration_s=args.duration)

@@ -58,6 +58,9 @@ class SimHandConfig:
     drop_tactile: float = 0.0
     """Probability that a skin message is lost."""
     drop_joint_states: float = 0.0
+    stray_joint_states: float = 0.0
+    """Probability that a malformed joint state (NaN angles, as from a faulty node on the same
+    topic) follows a step's joint state: the controller must drop it and go on."""
     joint_noise_rad: float = 0.0
     """Std of Gaussian noise on the published joint angles."""
     skin_baseline: float = 10.0
@@ -84,7 +87,7 @@ class SimHandConfig:
         check(self.task in ("simple", "middle", "hard"), "task", f"must be simple, middle or hard, got {self.task!r}")
         check(self.episodes >= 1, "episodes", "must be >= 1")
         check(self.latency_s >= 0, "latency_s", "must be >= 0")
-        for name in ("drop_tactile", "drop_joint_states", "dead_taxels"):
+        for name in ("drop_tactile", "drop_joint_states", "stray_joint_states", "dead_taxels"):
             check(0 <= getattr(self, name) < 1, name, "must be in [0, 1)")
         check(self.joint_noise_rad >= 0 and self.skin_noise >= 0, "skin_noise", "noise must be >= 0")
         check(self.skin_gain > 0, "skin_gain", "must be positive")
@@ -199,6 +202,8 @@ class SimHand:
                 else env.joint_pos[0]
             if self.rng.random() >= cfg.drop_joint_states:
                 send(pub_joints, node.joint_state(q, env.joint_vel[0], stamp=stamp))
+            if cfg.stray_joint_states and self.rng.random() < cfg.stray_joint_states:
+                send(pub_joints, node.joint_state(np.full_like(q, np.nan), stamp=stamp))
 
         obs, _ = env.reset(seed=cfg.seed)
         if cfg.rest_steps:  # the balls far away: a skin at rest
