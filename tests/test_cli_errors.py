@@ -88,12 +88,12 @@ def test_dead_fraction_outside_0_1_is_refused_naming_it(capsys, dead):
 def test_debug_shows_the_traceback_and_bugs_are_not_hidden(monkeypatch):
     with pytest.raises(ConfigError, match="num_envs"):
         main(["config", "--set", "num_envs=0", "--debug"])
-    import tacgnn.cli as cli
+    from tacgnn.cli import simulation
 
     def broken(args):
         raise KeyError("a bug")
 
-    monkeypatch.setattr(cli, "cmd_config", broken)
+    monkeypatch.setattr(simulation, "cmd_config", broken)
     with pytest.raises(KeyError):
         main(["config"])
 

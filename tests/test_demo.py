@@ -4,9 +4,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from tacgnn.cli import SHIPPED_POLICY
 from tacgnn.envs.baoding import BaodingEnv
-from tacgnn.learning.policy import load_perception, load_policy
+from tacgnn.learning.policy import SHIPPED_POLICY, load_perception, load_policy
 
 
 def test_shipped_policy_loads_and_acts():

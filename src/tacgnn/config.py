@@ -226,7 +226,25 @@ def override(config: T, updates: Mapping[str, Any]) -> T:
             if i < len(parts) - 1:
                 node = node[part]
         node[parts[-1]] = value
-    return from_dict(type(config), tree)
+    try:
+        return from_dict(type(config), tree)
+    except ConfigError as err:
+        raise _named_by_updates(err, type(config).__name__, list(updates)) from None
+
+
+def _named_by_updates(err: ConfigError, root: str, keys: list[str]) -> ConfigError:
+    """`err` naming the given keys when it names only the config they sit in.
+
+    A check that fails with an arithmetic error (e.g. ``round(inf)``) cannot say which field
+    it read; the keys the user changed under that config are the ones to look at.
+    """
+    if err.key is None or err.key in keys:
+        return err
+    under = [k for k in keys if err.key == root or k.startswith(err.key + ".")]
+    if not under:
+        return err
+    named = ", ".join(f"'{k}'" for k in under)
+    return ConfigError(f"config key {named}: {err.detail or err}", key=under[0], detail=err.detail)
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
@@ -56,6 +57,23 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write(path, lambda fh: fh.write(text.encode()))
 
 
+def check_writable(folder: str | Path, what: str = "folder") -> Path:
+    """Create `folder` if needed and prove a file can be written in it, before a job runs.
+
+    A job that finds out at its end (or in a logging thread) that its output folder is read
+    only has wasted its run; raises `FileProblem` naming the folder instead.
+    """
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = temp_path(folder / ".write-probe")
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise FileProblem(f"cannot write in the {what} {folder}: {_reason(err)}") from err
+    return folder
+
+
 def remove_stale_temp_files(folder: str | Path) -> list[Path]:
     """Delete temp files of writers that no longer run (killed mid-write); return them."""
     removed = []
@@ -81,6 +99,25 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _foreign_kind(path: Path) -> str:
+    """What `path` is when it cannot be a torch file ('' when it may be one).
+
+    torch.save writes a zip archive (or, long ago, a pickle); anything else fails inside
+    torch.load with messages such as '101' or 'pop from empty list'.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(4096)
+    if head.startswith(b"PK\x03\x04") or head[:1] == b"\x80":
+        return ""
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "not a torch file"
+    if path.suffix.lower() in (".yaml", ".yml") or re.match(r"\s*[\w.-]+\s*:", text):
+        return "a YAML or text file"
+    return "a text file"
+
+
 def _reason(err: OSError) -> str:
     if err.errno == errno.ENOSPC:
         return "disk full"
@@ -98,10 +135,15 @@ def read_weights(path: str | Path, what: str) -> Any:
     import torch
 
     path = Path(path)
+    if path.is_dir():
+        raise FileProblem(f"{path} is a folder, not a {what} (give the .pt file in it)")
     if not path.is_file():
         raise FileNotFoundError(f"{what} not found: {path}")
     if path.stat().st_size == 0:
         raise FileProblem(f"cannot read {what} {path}: the file is empty")
+    kind = _foreign_kind(path)
+    if kind:
+        raise FileProblem(f"{path} is {kind}, not a {what} (a .pt file written by tacgnn)")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # truncated zip, bad pickle, foreign objects...

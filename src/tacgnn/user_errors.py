@@ -15,11 +15,15 @@ from tacgnn.config import ConfigError
 # Matched by class name so that a command need not import the modules that define them (they
 # load torch and MuJoCo); OSError covers missing, unreadable and unwritable files.
 USER_ERRORS = ("ConfigError", "DatasetError", "CheckpointError", "CalibrationError", "RecordingError",
-               "RenderingUnavailable", "FileProblem")
+               "RenderingUnavailable", "FileProblem", "SimulationDiverged")
 
 
 def is_user_error(err: BaseException) -> bool:
-    return isinstance(err, (ConfigError, OSError)) or any(c.__name__ in USER_ERRORS for c in type(err).__mro__)
+    # FloatingPointError: the training guards' stop on a NaN or Inf loss or gradient (weights left
+    # as they were, the last checkpoint the one to resume); with the shipped settings it does not
+    # happen, so a value given (a learning rate, a loss weight) is the cause.
+    return (isinstance(err, (ConfigError, OSError, FloatingPointError))
+            or any(c.__name__ in USER_ERRORS for c in type(err).__mro__))
 
 
 def error_line(err: BaseException) -> str:

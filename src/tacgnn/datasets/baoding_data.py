@@ -63,6 +63,13 @@ class BaodingDataConfig:
         check(self.settle_steps >= 0, "settle_steps", f"must be >= 0, got {self.settle_steps}")
         check(self.action_noise >= 0, "action_noise", f"must be >= 0, got {self.action_noise}")
         check(self.min_episode_steps >= 0, "min_episode_steps", f"must be >= 0, got {self.min_episode_steps}")
+        # an episode ends by this step at the latest: skipping or requiring more steps records nothing, ever
+        limit = (round(self.env.continuous_seconds / self.env.control_dt) if self.env.task == "continuous"
+                 else self.env.max_episode_steps)
+        for key in ("settle_steps", "min_episode_steps"):
+            value = getattr(self, key)
+            check(value < limit, key, f"must be below the episode's {limit} steps, got {value}")
+        check(self.keep_every <= limit, "keep_every", f"must be at most the episode's {limit} steps")
         check(self.env.obs_mode == "tactile", "env.obs_mode", "the dataset records the 'tactile' observation")
 
 

@@ -41,6 +41,10 @@ class DatasetError(RuntimeError):
     """A dataset is missing, corrupt, or not what the caller expects."""
 
 
+class DamagedManifest(DatasetError):
+    """The manifest cannot be read: not JSON, or lacking the keys of one (a rerun rebuilds it)."""
+
+
 @dataclass(frozen=True)
 class Field:
     """One per-sample array of the schema: its shape (without the sample axis) and dtype."""
@@ -131,8 +135,8 @@ class ShardedWriter:
         header = {"format_version": FORMAT_VERSION, "metadata": metadata, "num_shards": num_shards,
                   "shard_size": shard_size,
                   "schema": {k: {"shape": list(f.shape), "dtype": f.dtype} for k, f in schema.items()}}
-        if self.manifest_path.exists():
-            manifest = read_manifest(self.root)
+        manifest = self._readable_manifest()
+        if manifest is not None:
             old = {k: manifest[k] for k in header}
             changed, added = _differences(old, json.loads(json.dumps(header)))
             if changed:
@@ -146,6 +150,18 @@ class ShardedWriter:
         else:
             self.manifest = {**header, "shards": {}}
             atomic_write_text(self.manifest_path, json.dumps(self.manifest, indent=1))
+
+    def _readable_manifest(self) -> dict | None:
+        """The folder's manifest; None when there is none or it is damaged (cut off by a full
+        disk, edited by hand): that one is started afresh and every shard made again, which
+        gives the same data (shard i comes from seed (seed, i)) without trusting unrecorded files."""
+        if not self.manifest_path.exists():
+            return None
+        try:
+            return read_manifest(self.root)
+        except DamagedManifest as err:
+            log.warning("%s; starting the manifest afresh, every shard is made again", err)
+            return None
 
     def missing(self) -> list[int]:
         """Shard indices not yet written (or whose file is gone)."""
@@ -207,9 +223,9 @@ def read_manifest(root: str | Path) -> dict:
     try:
         manifest = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise DatasetError(f"{path}: manifest is not valid JSON ({err})") from None
+        raise DamagedManifest(f"{path}: manifest is not valid JSON ({err})") from None
     if not isinstance(manifest, dict):
-        raise DatasetError(f"{path}: manifest is not a JSON object")
+        raise DamagedManifest(f"{path}: manifest is not a JSON object")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{path}: format version {manifest.get('format_version')}, "
                            f"this code reads {FORMAT_VERSION}")
@@ -222,7 +238,7 @@ def _check_manifest(manifest: dict, path: Path) -> None:
 
     def need(ok: bool, what: str) -> None:
         if not ok:
-            raise DatasetError(f"{path}: damaged manifest, {what}")
+            raise DamagedManifest(f"{path}: damaged manifest, {what}")
 
     for key, kind in (("metadata", dict), ("num_shards", int), ("shard_size", int), ("schema", dict),
                       ("shards", dict)):

@@ -32,6 +32,11 @@ from tacgnn.sim.scene import SimConfig, hand_scene, palm_frame
 
 ObjectName = Literal["cube", "cylinder", "meat_can"]
 YAW_RANGE_DEG = {"cube": 90.0, "cylinder": 180.0, "meat_can": 180.0}
+MAX_PHASE_STEPS = 5_000
+
+
+class SimulationDiverged(RuntimeError):
+    """The physics blew up: with the shipped configs it does not, so a changed value is the cause."""
 
 
 @dataclass(frozen=True)
@@ -59,8 +64,9 @@ class GraspConfig:
         whole = round(substeps) >= 1 and abs(substeps - round(substeps)) < 1e-6
         check(0 < self.control_dt <= 1 and whole, "control_dt",
               f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
-        for key in ("settle_steps", "close_steps", "hold_steps"):
-            check(getattr(self, key) >= 1, key, f"must be >= 1, got {getattr(self, key)}")
+        for key in ("settle_steps", "close_steps", "hold_steps"):  # a grasp of minutes is a typo, not a grasp
+            check(1 <= getattr(self, key) <= MAX_PHASE_STEPS, key,
+                  f"must be in 1..{MAX_PHASE_STEPS}, got {getattr(self, key)}")
         check(self.position_noise >= 0, "position_noise", f"must be >= 0, got {self.position_noise}")
         check(0 <= self.closure[0] <= self.closure[1] <= 1, "closure", "needs 0 <= low <= high <= 1")
         check(self.can_face in ("broad", "narrow"), "can_face", f"must be 'broad' or 'narrow', got {self.can_face!r}")
@@ -172,4 +178,5 @@ class PowerGrasp(HandEnvBase):
 
     def _check(self, diverged: np.ndarray) -> None:
         if diverged.any():
-            raise RuntimeError(f"grasp simulation diverged in envs {np.flatnonzero(diverged).tolist()}")
+            raise SimulationDiverged(f"grasp simulation diverged in {int(diverged.sum())} of {len(diverged)} envs: "
+                                     "a hand, sim or object value changed from its default is out of a workable range")

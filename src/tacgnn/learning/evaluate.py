@@ -27,7 +27,7 @@ import numpy as np
 
 from tacgnn.config import ConfigError, override, parse_overrides, to_dict
 from tacgnn.envs.baoding import BaodingEnv
-from tacgnn.files import FileProblem, atomic_write_text
+from tacgnn.files import FileProblem, atomic_write_text, check_writable
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.online_temporal import make_online_perception
@@ -230,6 +230,10 @@ def _evaluate_command(args: argparse.Namespace) -> int:
     for flag, value in (("--episodes", args.episodes), ("--envs", args.envs)):
         if value < 1:
             raise ConfigError(f"{flag} must be >= 1, got {value}")
+    if args.out:  # a result that cannot be written is found out before the episodes, not after
+        if args.out.is_dir():
+            raise FileProblem(f"--out {args.out} is a folder; give the JSON file to write")
+        check_writable(args.out.parent, "folder of --out")
     tasks = TASKS_180 if args.task == "all" else (args.task,)
     changes = parse_overrides(args.set)
     results = [evaluate(args.checkpoint, task, args.episodes, args.envs, args.seed, env_overrides=changes,
@@ -254,9 +258,5 @@ def _evaluate_command(args: argparse.Namespace) -> int:
         print(f"{r['task']:8s} {100 * r['success_rate']:7.1f}% {100 * lo:5.1f}-{100 * hi:5.1f}% "
               f"{r['mean_steps_to_success']:6.1f} {100 * r['fall_rate']:5.1f}%")
     if args.out:
-        try:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise FileProblem(f"cannot create the folder of {args.out}: {err.strerror or err}") from err
         atomic_write_text(args.out, json.dumps(results if len(results) > 1 else results[0], indent=2))
     return 0

@@ -65,6 +65,9 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
         raise ConfigError("obs_mode 'perceived' and a perception config go together "
                           f"(obs_mode={env_cfg.obs_mode!r}, "
                           f"perception config {'given' if perception_cfg else 'missing'})")
+    if env_cfg.obs_mode == "tactile":
+        raise ConfigError("config key 'obs_mode': 'tactile' gives the raw skin arrays, which the MLP policy cannot "
+                          "read; use 'perceived' (a perception reads them) or another mode")
     dist = dist or distributed.Distributed()
     if dist.enabled and perception_cfg is not None:
         raise ConfigError(f"obs_mode 'perceived' trains its perception on one process's frames: run it in one "
