@@ -114,17 +114,17 @@ def _parsers() -> dict[str, argparse.ArgumentParser]:
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     for name, parser in sub.choices.items():
         parsers[name] = parser
+    captured: list[argparse.ArgumentParser] = []
+
+    class Capture(Parser):
+        def parse_args(self, *args, **kwargs):
+            captured.append(self)
+            raise SystemExit(0)
+
     for name, module in (("train-policy", train), ("evaluate", evaluate)):
-        captured = {}
-
-        class Capture(Parser):
-            def parse_args(self, *args, **kwargs):
-                captured["parser"] = self
-                raise SystemExit(0)
-
         with pytest.raises(SystemExit):
             module.main([], parser_class=Capture)
-        parsers[name] = captured["parser"]
+        parsers[name] = captured[-1]
     return parsers
 
 

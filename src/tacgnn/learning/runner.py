@@ -28,10 +28,15 @@ run repeats an uninterrupted one bit for bit.
 
 from __future__ import annotations
 
+import contextlib
+import datetime
+import io
 import math
+import signal
+import statistics
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import torch
 from rsl_rl.env import VecEnv
@@ -46,6 +51,49 @@ from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.guarded_ppo import GuardedPPO, NonFiniteUpdate
 from tacgnn.learning.online_perception import OnlinePerception
 from tacgnn.learning.rsl_env import RslBaodingEnv
+
+LOG_FILE = "train.log"
+"""The run folder's full log: rsl_rl's per-iteration report, the networks, perception updates."""
+
+
+class _RunLogger(Logger):
+    """rsl_rl's logger (TensorBoard, episode statistics) with its ~33-line console report per
+    iteration moved to the run's log file, and one line on the console instead; no copy of the
+    enclosing repository's git state in the run folder."""
+
+    def __init__(self, *args, log_file: TextIO | None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.log_file = log_file
+        self.git_status_repos: list[str] = []
+
+    def _store_code_state(self) -> list[str]:
+        return []
+
+    def log(self, *args, **kwargs) -> None:
+        it, start_it, total_it = kwargs["it"], kwargs["start_it"], kwargs["total_it"]
+        success = [float(torch.as_tensor(ep["Episode/success_rate"]).float().mean())
+                   for ep in self.ep_extras if "Episode/success_rate" in ep]
+        report = io.StringIO()
+        with contextlib.redirect_stdout(report):
+            super().log(*args, **kwargs)
+        if self.disable_logs:
+            return
+        if self.log_file is not None:
+            self.log_file.write(report.getvalue())
+            self.log_file.flush()
+        done = it + 1 - start_it
+        seconds = kwargs["collect_time"] + kwargs["learn_time"]
+        steps = self.cfg["num_steps_per_env"] * self.num_envs * self.gpu_world_size
+        eta = datetime.timedelta(seconds=int(self.tot_time / max(done, 1) * (total_it - it - 1)))
+        parts = [f"iteration {it + 1}/{total_it}"]
+        if self.rewbuffer:
+            parts.append(f"reward {statistics.mean(self.rewbuffer):.2f}")
+        if success:
+            parts.append(f"success {100 * statistics.mean(success):.0f} %")
+        if self.lenbuffer:
+            parts.append(f"episode {statistics.mean(self.lenbuffer):.0f} steps")
+        parts += [f"{steps / max(seconds, 1e-9):,.0f} steps/s", f"ETA {eta}"]
+        print("  ".join(parts), flush=True)
 
 
 class Runner:
@@ -68,22 +116,60 @@ class Runner:
             raise ValueError("the perception in the loop trains on one process's frames; run it in one process")
         self.device = self.dist.device
         cfg = {**ppo_cfg.rsl_rl_cfg(), "multi_gpu": self.dist.rsl_rl_cfg()}
-        self.alg: GuardedPPO = GuardedPPO.construct_algorithm(env.get_observations().to(self.device), env, cfg,
-                                                              self.device)
-        self.logger = Logger(log_dir=None if run_dir is None else str(run_dir), cfg=cfg, env_cfg=env.cfg,
-                             num_envs=env.num_envs, is_distributed=self.dist.enabled,
-                             gpu_world_size=self.dist.world_size, gpu_global_rank=self.dist.rank, device=self.device)
-        self.logger.git_status_repos = []  # else rsl_rl runs `git status`/`git diff` on the enclosing repo
+        self.log_file = (open(run_dir / LOG_FILE, "a", encoding="utf-8")  # noqa: SIM115 - closed by close()
+                         if run_dir is not None and self.dist.is_main else None)
+        networks = io.StringIO()
+        with contextlib.redirect_stdout(networks):  # rsl_rl prints both networks: the log file keeps them
+            self.alg: GuardedPPO = GuardedPPO.construct_algorithm(env.get_observations().to(self.device), env, cfg,
+                                                                  self.device)
+        self._log(networks.getvalue())
+        self.logger = _RunLogger(log_dir=None if run_dir is None else str(run_dir), cfg=cfg, env_cfg=env.cfg,
+                                 num_envs=env.num_envs, is_distributed=self.dist.enabled,
+                                 gpu_world_size=self.dist.world_size, gpu_global_rank=self.dist.rank,
+                                 device=self.device, log_file=self.log_file)
         self.iteration = 0
+        self.stopped_by: str | None = None
+        """The signal (SIGINT, SIGTERM) that ended `learn` early, after saving a checkpoint."""
         self.last_checkpoint: Path | None = None
         steps = perception.cfg.update_every_steps if perception is not None else 1
         self.perception_every = max(1, math.ceil(steps / ppo_cfg.num_steps_per_env))
 
+    def _log(self, text: str) -> None:
+        if self.log_file is not None and text:
+            self.log_file.write(text if text.endswith("\n") else text + "\n")
+            self.log_file.flush()
+
     # --- the loop ------------------------------------------------------------------------
     def learn(self, until: int) -> None:
-        """Run iterations until `until` updates are complete."""
+        """Run iterations until `until` updates are complete.
+
+        SIGINT (Ctrl-C) or SIGTERM ends the run after the iteration under way, with a checkpoint
+        of it (`stopped_by` names the signal); a second one stops at once. Under torchrun the
+        signals keep their default, as the ranks must save together.
+        """
         if self.iteration >= until:
             return
+        if self.dist.enabled:
+            self._learn(until)
+            return
+        previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+        def stop(signum, frame):
+            self.stopped_by = signal.Signals(signum).name
+            for sig, handler in previous.items():  # the next one acts at once
+                signal.signal(sig, handler)
+            print(f"{self.stopped_by}: saving a checkpoint after iteration {self.iteration + 1}, then stopping "
+                  "(again to stop at once, without it)", flush=True)
+
+        for sig in previous:
+            signal.signal(sig, stop)
+        try:
+            self._learn(until)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def _learn(self, until: int) -> None:
         if self.logger.writer is None:
             self.logger.init_logging_writer()
         if self.perception is not None and self.iteration == 0 and self.perception.updates == 0:
@@ -112,8 +198,11 @@ class Runner:
                             rnd_weight=None)
             if self.perception is not None and self.iteration % self.perception_every == 0:
                 self.update_perception()
-            if self.iteration == 1 or self.iteration % self.ppo_cfg.save_interval == 0 or self.iteration == until:
+            if (self.iteration == 1 or self.iteration % self.ppo_cfg.save_interval == 0 or self.iteration == until
+                    or self.stopped_by):
                 self.save_checkpoint()
+            if self.stopped_by:
+                return
 
     def _update(self) -> dict[str, float]:
         try:
@@ -125,6 +214,9 @@ class Runner:
     def close(self) -> None:
         if self.logger.writer is not None:
             self.logger.writer.close()  # rsl_rl leaves its TensorBoard writer open
+        if self.log_file is not None:
+            self.log_file.close()
+            self.log_file = None
 
     # --- the perception in the loop ------------------------------------------------------
     def update_perception(self) -> None:
@@ -138,6 +230,7 @@ class Runner:
             for key, value in metrics.items():
                 self.logger.writer.add_scalar(key, value, self.iteration)
         print(f"[perception] iteration {self.iteration}: {_metrics_line(metrics)}", flush=True)
+        self._log(f"[perception] iteration {self.iteration}: {_metrics_line(metrics)}")
 
     def warm_up_perception(self) -> None:
         """Train the perception on the starting policy's own states before PPO moves the policy.

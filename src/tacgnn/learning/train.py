@@ -4,8 +4,10 @@
     tacgnn train-policy --run-dir runs/gt --resume
     torchrun --standalone --nproc-per-node 4 -m tacgnn.cli train-policy --device cuda --run-dir runs/gt ...
 
-A run folder holds config.yaml, TensorBoard
-events and ``model_<iterations>.pt`` checkpoints (`tacgnn.learning.checkpoint`). Resuming
+A run folder holds config.yaml, train.log (the full report of every iteration; the console
+shows one line each), TensorBoard events and ``model_<iterations>.pt`` checkpoints
+(`tacgnn.learning.checkpoint`). Ctrl-C or SIGTERM saves a checkpoint of the iteration under way
+before the run stops. Resuming
 continues from the newest checkpoint, bit for bit as if the run had never stopped; temp
 files left by a killed write are removed first. Under torchrun the ranks train one policy
 on their own envs (`tacgnn.learning.distributed`); rank 0 writes the run folder.
@@ -17,6 +19,7 @@ import argparse
 import logging
 import math
 import random
+import signal
 from dataclasses import replace
 from pathlib import Path
 
@@ -33,7 +36,7 @@ from tacgnn.learning.config import ARCHITECTURE_KEYS, PPOConfig
 from tacgnn.learning.online_perception import OnlinePerceptionConfig
 from tacgnn.learning.online_temporal import make_online_perception
 from tacgnn.learning.rsl_env import RslBaodingEnv
-from tacgnn.learning.runner import Runner
+from tacgnn.learning.runner import LOG_FILE, Runner
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +117,25 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
         runner.learn(ppo_cfg.max_iterations)
     finally:
         runner.close()
+    if dist.is_main:
+        _closing_line(runner, run_dir)
+    if runner.stopped_by == "SIGINT":
+        raise KeyboardInterrupt
+    if runner.stopped_by:
+        raise SystemExit(128 + signal.Signals[runner.stopped_by].value)
     return runner.last_checkpoint
+
+
+def _closing_line(runner: Runner, run_dir: Path) -> None:
+    """What the run left behind, and how to go on from it."""
+    saved = runner.last_checkpoint
+    where = f"{saved}" if saved else "no checkpoint"
+    if runner.stopped_by:
+        print(f"stopped by {runner.stopped_by} after iteration {runner.iteration}: saved {where}; continue with "
+              f"tacgnn train-policy --run-dir {run_dir} --resume", flush=True)
+    else:
+        print(f"done: {runner.iteration} iterations, last checkpoint {where} (log: {run_dir / LOG_FILE}; curves: "
+              f"tensorboard --logdir {run_dir})", flush=True)
 
 
 def _rank_env_config(env_cfg: BaodingConfig, dist: distributed.Distributed) -> BaodingConfig:
