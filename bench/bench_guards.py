@@ -10,8 +10,7 @@ import time
 import torch
 
 from tacgnn.learning.checkpoint import load_checkpoint
-from tacgnn.perception.checkpoint import make_model
-from tacgnn.perception.train_config import default_model_config
+from tacgnn.perception.models import PerceptionModelConfig, build_model
 from tacgnn.user_errors import run_script
 
 
@@ -27,7 +26,7 @@ def main() -> None:
     parser.add_argument("--checkpoint", default="", help="a PPO checkpoint (default: the default policy's sizes)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    model = make_model(default_model_config(name="tacgnn"), None)
+    model = build_model(PerceptionModelConfig(name="tacgnn"))
     grads = [torch.randn_like(p) for p in model.parameters()]
     seconds = per_call(lambda: torch.nn.utils.get_total_norm(grads), 2000)
     print(f"TacGNN-32 gradient norm ({len(grads)} tensors): {seconds * 1e6:.0f} us per batch; "

@@ -37,12 +37,13 @@ import torch
 import torch.nn.functional as F
 
 from tacgnn.perception.models import MODEL_NAMES, PerceptionModelConfig, build_model
-from tacgnn.perception.train_config import TRAIN_MODEL_DEFAULTS, default_model_config
+from tacgnn.perception.models.config import PAPER_TACGNN
 from tacgnn.perception.training import make_optimizer
 from tacgnn.runtime import keep_freed_memory
 from tacgnn.user_errors import run_script
 
 T = 653
+DEFAULTS = {k: getattr(PerceptionModelConfig(), k) for k in PAPER_TACGNN}  # where they differ from the paper
 
 
 def make_frames(n: int, rest: torch.Tensor, per_blob: int = 30, seed: int = 0):
@@ -132,13 +133,13 @@ def main() -> None:
                   f"{best:,.0f} graphs/s best round (median {med:,.0f}; load {load()})")
     tacgnn.use_compiled_graphs = True
     # the settings `tacgnn train-perception` starts from (log force input, jumping-knowledge readout)
-    ours = build_model(default_model_config(name="tacgnn", channels=32))
-    ours_joints = build_model(default_model_config(name="tacgnn", channels=32, joint_inputs=16))
+    ours = build_model(PerceptionModelConfig(name="tacgnn", channels=32))
+    ours_joints = build_model(PerceptionModelConfig(name="tacgnn", channels=32, joint_inputs=16))
     joints = torch.rand(len(readings), 16)
     for threads in (2, 1):
         torch.set_num_threads(threads)
         best, med = graphs_per_second(ours, readings, positions)
-        print(f"TacGNN-32, training defaults ({', '.join(f'{k}={v}' for k, v in TRAIN_MODEL_DEFAULTS.items())}), "
+        print(f"TacGNN-32, training defaults ({', '.join(f'{k}={v}' for k, v in DEFAULTS.items())}), "
               f"{threads} thread(s): {best:,.0f} graphs/s best round (median {med:,.0f}; load {load()})")
     torch.set_num_threads(1)
     with torch.inference_mode():
@@ -181,7 +182,7 @@ def main() -> None:
     tr, off, tg = make_frames(n_train, rest, seed=1)
     for threads in args.train_threads:
         torch.set_num_threads(threads)
-        model = build_model(default_model_config(name="tacgnn", channels=32))
+        model = build_model(PerceptionModelConfig(name="tacgnn", channels=32))
         train_seconds(model, tr, off, tg, rest, steps=20)  # warm-up
         steps = total_steps if args.full else 400
         secs = train_seconds(model, tr, off, tg, rest, steps=steps)
@@ -194,7 +195,7 @@ def main() -> None:
     torch.set_num_threads(1)
     update_steps = 2 * 25_600 // batch
     for name in MODEL_NAMES:
-        model = (build_model(default_model_config(name="tacgnn", channels=32)) if name == "tacgnn"
+        model = (build_model(PerceptionModelConfig(name="tacgnn", channels=32)) if name == "tacgnn"
                  else build_model(PerceptionModelConfig(name=name), rest_positions=rest))
         train_seconds(model, tr, off, tg, rest, steps=10)  # warm-up
         secs = min(train_seconds(model, tr, off, tg, rest, steps=100) for _ in range(3)) / 100

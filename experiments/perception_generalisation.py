@@ -25,13 +25,11 @@ import torch
 from tacgnn.config import ConfigError
 from tacgnn.datasets.store import read_manifest
 from tacgnn.files import atomic_write_text
-from tacgnn.learning.online_temporal import TemporalOnlinePerception
 from tacgnn.learning.policy import SHIPPED_POLICY, load_perception
 from tacgnn.perception.checkpoint import load_model
 from tacgnn.perception.data import load_tactile
-from tacgnn.perception.evaluation import ball_visibility_errors, predict
+from tacgnn.perception.evaluation import ball_errors, predict, predict_frames
 from tacgnn.perception.objectives import Objective
-from tacgnn.perception.sequence_evaluation import sequence_predictions
 from tacgnn.perception.sequences import load_sequences
 from tacgnn.provenance import provenance
 from tacgnn.user_errors import run_script
@@ -40,9 +38,10 @@ from tacgnn.user_errors import run_script
 def errors(pred: torch.Tensor, data) -> dict[str, float]:
     """Position RMSE (cm) of predictions `pred` (N, 6) of `data`'s frames: all, touched and untouched balls."""
     out = {"position_rmse_cm": Objective("baoding", True).metrics(pred, data.targets)["position_rmse_cm"]}
-    vis = ball_visibility_errors(pred, data, True)
-    return {**out, "touched_rmse_cm": vis["seen_rmse_cm"], "untouched_rmse_cm": vis["blind_rmse_cm"],
-            "untouched_fraction": vis["blind_fraction"]}
+    se, touch, _ = ball_errors(pred, data, True)
+    return {**out, "touched_rmse_cm": float(se[touch].mean().sqrt()),
+            "untouched_rmse_cm": float(se[~touch].mean().sqrt()),
+            "untouched_fraction": float((~touch).float().mean())}
 
 
 def main() -> None:
@@ -58,12 +57,12 @@ def main() -> None:
         raise ConfigError(f"{args.policy}: holds no perception (not a blind policy)")
     offline, _, _ = load_model(args.offline)
     data = load_tactile(args.dataset, "baoding")
-    if isinstance(shipped, TemporalOnlinePerception):  # memory: each episode read from its first frame
+    if shipped.temporal:  # memory: each episode read from its first frame
         sequences = load_sequences(args.dataset)  # the same frames, in episode order
-        shipped_row = errors(sequence_predictions(shipped.filter, shipped.train_cfg, sequences), sequences.frames)
+        shipped_row = errors(predict(shipped.model, sequences), sequences.frames)
     else:
-        shipped_row = errors(predict(shipped.model, data), data)
-    rows = {"shipped": shipped_row, "offline": errors(predict(offline, data), data)}
+        shipped_row = errors(predict_frames(shipped.model, data), data)
+    rows = {"shipped": shipped_row, "offline": errors(predict_frames(offline, data), data)}
     ratio = rows["shipped"]["position_rmse_cm"] / rows["offline"]["position_rmse_cm"]
     for name, r in rows.items():
         print(f"{name:>8}: {r['position_rmse_cm']:.3f} cm (touched {r['touched_rmse_cm']:.3f}, untouched "

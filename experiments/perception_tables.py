@@ -233,7 +233,7 @@ def main() -> None:
     lines += ["## Table II: ball positions (RMSE, cm)", "",
               "Test error split by what the skin sees: *touched* = balls with an activated taxel "
               "within 3 cm of the centre, *untouched* = the others (resting on the other ball or on "
-              "a part of the hand without skin); `tacgnn.perception.evaluation.ball_visibility_errors`.", "",
+              "a part of the hand without skin); `tacgnn.perception.evaluation.ball_errors`.", "",
               "| model | train (ours) | test (ours) | test, touched balls | test, untouched balls | train (paper) "
               "| test (paper) | s/epoch |", "|---|---|---|---|---|---|---|---|"]
     blind_share = []
@@ -242,11 +242,11 @@ def main() -> None:
         tr = [r["final"]["train/position_rmse_cm"] for r in runs]
         te = [r["final"]["test/position_rmse_cm"] for r in runs]
         vis = [evaluate(r["ckpt"], data["baoding"]) for r in runs]
-        blind_share += [v["blind_fraction"] for v in vis[:1]]
+        blind_share += [v["untouched_fraction"] for v in vis[:1]]
         sec = np.mean([h["seconds"] for r in runs for h in r["history"]]) if runs else float("nan")
         p = PAPER_TABLE2.get(key, ("-", "-"))
-        lines.append(f"| {key} | {mean_std(tr)} | {mean_std(te)} | {mean_std([v['seen_rmse_cm'] for v in vis])} | "
-                     f"{mean_std([v['blind_rmse_cm'] for v in vis])} | {p[0]} | {p[1]} | {sec:.1f} |")
+        lines.append(f"| {key} | {mean_std(tr)} | {mean_std(te)} | {mean_std([v['touched_rmse_cm'] for v in vis])} | "
+                     f"{mean_std([v['untouched_rmse_cm'] for v in vis])} | {p[0]} | {p[1]} | {sec:.1f} |")
     if blind_share:
         lines += ["", f"Untouched balls: {100 * blind_share[0]:.1f} % of the test balls.", ""]
 

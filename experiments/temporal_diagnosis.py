@@ -34,8 +34,9 @@ from tacgnn.config import ConfigError, from_dict
 from tacgnn.datasets.store import read_manifest
 from tacgnn.files import atomic_write_text
 from tacgnn.hand.skin_layout import SkinLayout
-from tacgnn.perception.sequence_checkpoint import load_sequence_model
-from tacgnn.perception.sequence_evaluation import matched_ball_errors, prediction_metrics, sequence_predictions
+from tacgnn.perception.checkpoint import load_model
+from tacgnn.perception.evaluation import ball_errors_since_touch, predict
+from tacgnn.perception.evaluation import metrics as frame_metrics
 from tacgnn.perception.sequences import SequenceData, load_sequences, split_by_episode
 from tacgnn.provenance import provenance
 from tacgnn.user_errors import run_script
@@ -86,18 +87,18 @@ def main() -> None:
     torch.set_num_threads(1)
 
     ckpt = Path(args.run) / "checkpoint.pt"
-    model, cfg, _ = load_sequence_model(ckpt)
+    model, cfg, _ = load_model(ckpt)
     data = load_sequences(args.dataset, cfg.max_frames)
     train, test = split_by_episode(data, cfg.train_fraction, cfg.seed)
     if args.cache and Path(args.cache).exists():
         pred = torch.load(args.cache)
     else:
-        pred = sequence_predictions(model, cfg, test)
+        pred = predict(model, test)
         if args.cache:
             Path(args.cache).parent.mkdir(parents=True, exist_ok=True)
             torch.save(pred, args.cache)
-    metrics = prediction_metrics(pred, cfg, test)
-    se, touch, since = matched_ball_errors(pred, test, cfg.match_balls)
+    metrics = frame_metrics(pred, cfg, test)
+    se, touch, since = ball_errors_since_touch(pred, test, cfg.match_balls)
     keep = test.step >= cfg.eval_from_step
     frame_se = se.mean(1)
 
@@ -141,11 +142,11 @@ def main() -> None:
                                       "episodes": len(torch.unique(train.episode[near < 1.5]))}
     other_se = None
     if args.compare:
-        other, other_cfg, _ = load_sequence_model(Path(args.compare) / "checkpoint.pt")
+        other, other_cfg, _ = load_model(Path(args.compare) / "checkpoint.pt")
         if (other_cfg.seed, other_cfg.train_fraction, other_cfg.max_frames) != (cfg.seed, cfg.train_fraction,
                                                                                  cfg.max_frames):
             raise ConfigError(f"--compare {args.compare}: another split than {args.run}")
-        other_se = matched_ball_errors(sequence_predictions(other, other_cfg, test), test, other_cfg.match_balls)[0]
+        other_se = ball_errors_since_touch(predict(other, test), test, other_cfg.match_balls)[0]
         report["compare"] = args.compare
     total = float(ep_se.sum())
     layout = from_dict(SkinLayout, read_manifest(args.dataset)["metadata"]["skin"])

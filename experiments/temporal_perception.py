@@ -56,14 +56,15 @@ from tacgnn.datasets.store import read_manifest
 from tacgnn.envs.observation import track_ball_identities
 from tacgnn.files import atomic_write, atomic_write_text
 from tacgnn.hand.skin_layout import SkinLayout
-from tacgnn.perception.evaluation import patch_taxels, without_taxels
-from tacgnn.perception.sequence_checkpoint import load_sequence_checkpoint, load_sequence_model
-from tacgnn.perception.sequence_evaluation import (
-    matched_ball_errors,
-    prediction_metrics,
-    sequence_predictions,
+from tacgnn.perception.checkpoint import load_checkpoint, load_model
+from tacgnn.perception.evaluation import (
+    ball_errors_since_touch,
+    patch_taxels,
+    predict,
     since_touch_curve,
+    without_taxels,
 )
+from tacgnn.perception.evaluation import metrics as frame_metrics
 from tacgnn.perception.sequences import SequenceData, load_sequences, split_by_episode
 from tacgnn.provenance import provenance
 from tacgnn.user_errors import run_script
@@ -73,7 +74,7 @@ PAPER_TACGNN32_TEST_CM = 0.096
 
 
 def label(cfg) -> str:
-    name = {"tacgnn": f"TacGNN-{cfg.model.frame.channels}", "mlp": "MLP", "cnn": "CNN"}[cfg.model.frame.name]
+    name = {"tacgnn": f"TacGNN-{cfg.model.channels}", "mlp": "MLP", "cnn": "CNN"}[cfg.model.name]
     return f"{name} temporal" if cfg.temporal else f"{name} single-frame"
 
 
@@ -81,13 +82,13 @@ def touched_breakdown(pred: torch.Tensor, cfg, data: SequenceData, skin: dict, t
     """Where the touched balls' error comes from: its spread, the RMSE by the skin patches that
     touch the ball (activated taxels within 3 cm of its centre; the most common sets first), and
     how much of the error the worst test episodes hold."""
-    se, touch, _ = matched_ball_errors(pred, data, cfg.match_balls)
+    se, touch, _ = ball_errors_since_touch(pred, data, cfg.match_balls)
     layout = from_dict(SkinLayout, skin)
     names = [p.name for p in layout.patches]
     patch = torch.from_numpy(layout.patch_index())
     t = data.frames.targets
     swapped = t[:, [3, 4, 5, 0, 1, 2]]
-    if cfg.match_balls:  # the ball order matched_ball_errors uses
+    if cfg.match_balls:  # the ball order ball_errors_since_touch uses
         t = torch.where((((pred - swapped) ** 2).sum(1) < ((pred - t) ** 2).sum(1))[:, None], swapped, t)
     active = data.frames.readings > 0
     codes = []
@@ -140,15 +141,15 @@ def main() -> None:
     outputs: list[tuple[torch.Tensor, object, SequenceData]] = []  # for --ensemble
     for run in args.runs:
         ckpt = Path(run) / "checkpoint.pt"
-        model, cfg, _ = load_sequence_model(ckpt)
-        payload = load_sequence_checkpoint(ckpt)
+        model, cfg, _ = load_model(ckpt)
+        payload = load_checkpoint(ckpt)
         history, trained_on = payload["history"], payload.get("dataset", {}).get("path", args.dataset)
         if cfg.max_frames not in loaded:
             loaded[cfg.max_frames] = load_sequences(args.dataset, cfg.max_frames)
         train_set, test_set = split_by_episode(loaded[cfg.max_frames], cfg.train_fraction, cfg.seed)
-        pred = sequence_predictions(model, cfg, test_set)
+        pred = predict(model, test_set)
         outputs.append((pred, cfg, test_set))
-        metrics = prediction_metrics(pred, cfg, test_set)
+        metrics = frame_metrics(pred, cfg, test_set)
         name = label(cfg)
         own = Path(trained_on).resolve() == Path(args.dataset).resolve()
         if not own:  # a model trained on another dataset, read on these test episodes
@@ -170,14 +171,13 @@ def main() -> None:
                                                                read_manifest(args.dataset)["metadata"]["skin"])
         if args.lose_patch:
             taxels = patch_taxels(read_manifest(args.dataset)["metadata"]["skin"], args.lose_patch)
-            frames = without_taxels(test_set.frames, taxels)
-            lost = SequenceData(frames, test_set.actions, test_set.episode, test_set.step)
-            lost_rmse = prediction_metrics(sequence_predictions(model, cfg, lost), cfg, lost)["position_rmse_cm"]
+            lost = without_taxels(test_set, taxels)
+            lost_rmse = frame_metrics(predict(model, lost), cfg, lost)["position_rmse_cm"]
             results[name][f"{args.lose_patch}_lost_rmse_cm"] = lost_rmse
             results[name][f"{args.lose_patch}_lost_rmse_ratio"] = lost_rmse / metrics["position_rmse_cm"]
         if args.train_error and own:
-            results[name]["train_position_rmse_cm"] = prediction_metrics(
-                sequence_predictions(model, cfg, train_set), cfg, train_set)["position_rmse_cm"]
+            results[name]["train_position_rmse_cm"] = frame_metrics(
+                predict(model, train_set), cfg, train_set)["position_rmse_cm"]
         results[name]["config"] = to_dict(cfg)
         results[name]["provenance"] = provenance({"perception": ckpt}, cfg.seed, {"dataset": args.dataset})
         print(f"{name:>24}: overall {metrics['position_rmse_cm']:.3f} cm, touched "
@@ -210,7 +210,7 @@ def ensemble(outputs: list, runs: list[str]) -> dict:
             raise ConfigError("--ensemble: the runs were tested on different episodes (another split or max_frames)")
     aligned = [torch.from_numpy(track_ball_identities(pred.numpy(), first.numpy())) for pred, _, _ in outputs]
     mean = torch.stack(aligned).mean(0)
-    return {"runs": list(runs), **prediction_metrics(mean, cfg, data),
+    return {"runs": list(runs), **frame_metrics(mean, cfg, data),
             "by_steps_since_touch": since_touch_curve(mean, cfg, data, BINS)}
 
 

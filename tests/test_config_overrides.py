@@ -148,11 +148,11 @@ def _run(tree: str, cfg, tmp_dir) -> None:
     elif tree == "train-perception":
         import torch
 
-        from tacgnn.perception.checkpoint import make_model
+        from tacgnn.perception.checkpoint import build_perception
         from tacgnn.perception.rest_positions import rest_positions_cm
 
         rest = rest_positions_cm(to_dict(TREES["env"].skin)) if cfg.model.name == "gcn" else None
-        model = make_model(cfg.model, rest)
+        model = build_perception(cfg.model, False, cfg.memory, rest)  # the frame model the config names
         readings = torch.rand(2, cfg.model.num_taxels)
         positions = torch.randn(2, cfg.model.num_taxels, 3)
         joints = torch.zeros(2, cfg.model.joint_inputs) if cfg.model.joint_inputs else None

@@ -211,12 +211,14 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="trained without a perception"):
         evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=gt_policy)
     payload = torch.load(perc, weights_only=True)
-    payload["config"]["task"] = "cube"
+    payload["config"]["task"], payload["config"]["model"]["out_dim"] = "cube", 9
     torch.save(payload, tmp_path / "cube.pt")
     with pytest.raises(ValueError, match="'cube' task"):
         evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=tmp_path / "cube.pt")
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
-    with pytest.raises(ValueError, match="neither a perception checkpoint nor a policy"):
+    from tacgnn.files import FileProblem
+
+    with pytest.raises(FileProblem, match="junk.pt is a text file, not a perception or policy file"):
         evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=tmp_path / "junk.pt")
     with pytest.raises(FileNotFoundError):
         evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=tmp_path / "missing.pt")

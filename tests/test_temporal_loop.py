@@ -9,15 +9,15 @@ from tacgnn.config import ConfigError, to_dict
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.observation import BALL_COLUMNS
 from tacgnn.learning.checkpoint import frames_path, load_checkpoint
-from tacgnn.learning.online_perception import OnlinePerceptionConfig
-from tacgnn.learning.online_temporal import TemporalOnlinePerception
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.train import train
 from tacgnn.perception.models import PerceptionModelConfig
+from tacgnn.perception.models.temporal import MemoryConfig
 from tests.test_kill_resume import _assert_identical
 
 LOOP = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), temporal=True, window=4, burn_in=4,
                               update_every_steps=8, epochs=1, buffer_size=64, batch_size=8, warmup_rounds=1,
-                              temporal_feature=16, temporal_hidden=16)
+                              memory=MemoryConfig(feature=16, hidden=16))
 
 
 def _run(run_dir, iterations, resume=False):
@@ -55,7 +55,7 @@ def test_state_is_per_env_and_starts_fresh_with_each_episode():
     """What the env is told at each step equals the model run over that env's episode so far (from
     its first step after the reset); envs that reset start again from the fresh state."""
     env = BaodingEnv(BaodingConfig(num_envs=3, obs_mode="perceived", max_episode_steps=5))
-    perception = TemporalOnlinePerception(LOOP, to_dict(env.config.skin))
+    perception = OnlinePerception(LOOP, to_dict(env.config.skin))
     perception.bind_env(env)
     env.perception = perception
     inputs = []
@@ -91,7 +91,7 @@ def test_state_is_per_env_and_starts_fresh_with_each_episode():
 
 def test_bad_inputs_are_named(tmp_path):
     skin = to_dict(BaodingConfig().skin)
-    perception = TemporalOnlinePerception(LOOP, skin)
+    perception = OnlinePerception(LOOP, skin)
     with pytest.raises(RuntimeError, match="bind it first"):
         perception(np.zeros((2, 653), np.float32), np.zeros((2, 653, 3), np.float32), np.zeros((2, 16)))
     with pytest.raises(ConfigError, match="record_every"):
@@ -99,23 +99,27 @@ def test_bad_inputs_are_named(tmp_path):
     with pytest.raises(ConfigError, match="perception.model.name"):
         OnlinePerceptionConfig(temporal=True, model=PerceptionModelConfig(name="gcn"))
     # a single-frame checkpoint as a temporal perception's start, and a temporal one as a single-frame start
-    from tacgnn.learning.online_perception import OnlinePerception
-    from tacgnn.perception.checkpoint import CHECKPOINT_VERSION, CheckpointError
-    from tacgnn.perception.train_config import PerceptionTrainConfig
+    from tacgnn.perception.train_config import TEMPORAL_ROUTE, PerceptionTrainConfig
 
-    single = tmp_path / "single.pt"
-    single_config = to_dict(PerceptionTrainConfig.for_task("baoding", "mlp"))
-    torch.save({"format_version": CHECKPOINT_VERSION, "config": single_config, "model": {},
-                "dataset": {"num_taxels": 653}}, single)
-    with pytest.raises(CheckpointError, match="single-frame perception checkpoint.*needs a temporal one"):
-        TemporalOnlinePerception(OnlinePerceptionConfig(temporal=True, model=PerceptionModelConfig(name="mlp"),
-                                                        pretrained=str(single)), skin)
-    temporal = tmp_path / "temporal.pt"
-    torch.save({"format_version": CHECKPOINT_VERSION, "kind": "sequence", "config": {"temporal": True},
-                "model": {}, "dataset": {}, "epoch": 0}, temporal)
-    with pytest.raises(CheckpointError, match="temporal perception checkpoint.*needs a single-frame one"):
-        OnlinePerception(OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), pretrained=str(temporal)),
-                         skin)
+    for temporal in (False, True):
+        cfg = PerceptionTrainConfig.for_task("baoding", "mlp", **(TEMPORAL_ROUTE if temporal else {}))
+        path, _ = _perception_checkpoint(tmp_path / f"{temporal}.pt", cfg)
+        kind = "temporal" if temporal else "single-frame"
+        with pytest.raises(ConfigError, match=f"a {kind} perception checkpoint; perception.temporal is "
+                                              f"{str(not temporal).lower()}"):
+            OnlinePerception(OnlinePerceptionConfig(temporal=not temporal, model=PerceptionModelConfig(name="mlp"),
+                                                    pretrained=str(path)), skin)
+
+
+def _perception_checkpoint(path, cfg):
+    """A checkpoint of the model of `cfg` as `train-perception` writes it (weights as initialised)."""
+    from tacgnn.perception.checkpoint import build_perception, save_checkpoint
+
+    torch.manual_seed(1)
+    model = build_perception(cfg.model, cfg.temporal, cfg.memory)
+    save_checkpoint(path, {"config": to_dict(cfg), "epoch": 0, "model": model.state_dict(), "optimizer": {},
+                           "history": [], "dataset": {"num_taxels": 653}, "rest_positions_cm": None})
+    return path, model
 
 
 @pytest.mark.parametrize("temporal", [True, False])
@@ -123,20 +127,13 @@ def test_evaluate_takes_sequence_checkpoints_as_perception(tmp_path, temporal):
     """`tacgnn evaluate --perception` with a temporal checkpoint gives a filter per env; with a
     --by-episode one the single-frame model itself, with its trained weights."""
     from tacgnn.learning.evaluate import perception_from_file
-    from tacgnn.perception.checkpoint import CHECKPOINT_VERSION
-    from tacgnn.perception.models.temporal import TemporalModelConfig
-    from tacgnn.perception.sequence_checkpoint import KIND, build_sequence_model
-    from tacgnn.perception.sequence_train_config import SequenceTrainConfig
+    from tacgnn.perception.train_config import TEMPORAL_ROUTE, PerceptionTrainConfig
 
-    cfg = SequenceTrainConfig(model=TemporalModelConfig(frame=PerceptionModelConfig(name="mlp"), feature=8, hidden=8),
-                              temporal=temporal)
-    torch.manual_seed(1)
-    model = build_sequence_model(cfg)
-    path = tmp_path / "seq.pt"
-    torch.save({"format_version": CHECKPOINT_VERSION, "kind": KIND, "config": to_dict(cfg), "epoch": 0,
-                "model": model.state_dict(), "dataset": {"num_taxels": 653}}, path)
+    cfg = PerceptionTrainConfig.for_task("baoding", "mlp", memory=MemoryConfig(feature=8, hidden=8),
+                                         **(TEMPORAL_ROUTE if temporal else {"split": "episode"}))
+    path, model = _perception_checkpoint(tmp_path / "seq.pt", cfg)
     perception = perception_from_file(path, to_dict(BaodingConfig().skin))
-    assert isinstance(perception, TemporalOnlinePerception) == temporal
+    assert perception.temporal == temporal
     for name, tensor in model.state_dict().items():
         assert torch.equal(perception.model.state_dict()[name], tensor), name
     if not temporal:

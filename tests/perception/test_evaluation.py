@@ -6,7 +6,7 @@ import torch
 from tacgnn.hand.skin_layout import default_skin
 from tacgnn.perception.data import TactileData
 from tacgnn.perception.evaluation import (
-    ball_visibility_errors,
+    ball_errors,
     dead_taxels,
     evaluate,
     patch_loss,
@@ -43,23 +43,24 @@ def test_dead_taxels():
 
 def test_evaluate_with_dead_taxels(checkpoint, dataset):
     intact = evaluate(checkpoint, dataset)
-    assert set(intact) >= {"position_rmse_cm", "seen_rmse_cm", "blind_rmse_cm", "blind_fraction"}
+    assert set(intact) >= {"position_rmse_cm", "touched_rmse_cm", "untouched_rmse_cm", "untouched_fraction"}
     all_dead = evaluate(checkpoint, dataset, dead_fraction=1.0)
-    assert all_dead["blind_fraction"] == 1.0  # no taxel reads anything: every ball is unseen
+    assert all_dead["untouched_fraction"] == 1.0  # no taxel reads anything: every ball is untouched
     assert all_dead["position_rmse_cm"] != intact["position_rmse_cm"]
 
 
 def test_losing_a_whole_patch(checkpoint, dataset):
-    """The palm carries most contacts: losing it changes the error. A patch no test frame touches
-    (the thumb's pad in this data) changes nothing: ratio exactly 1."""
+    """The palm carries most contacts: losing it changes the error. Losing a patch never makes a
+    ball touched."""
     palm = patch_loss(checkpoint, dataset, "palm")
     assert palm["position_rmse_cm_without_palm"] == pytest.approx(
         evaluate(checkpoint, dataset, lost_patch="palm")["position_rmse_cm"])
     assert palm["rmse_ratio"] == pytest.approx(palm["position_rmse_cm_without_palm"] / palm["position_rmse_cm"])
     assert palm["rmse_ratio"] != pytest.approx(1.0)
-    assert palm["blind_fraction_without_palm"] > palm["blind_fraction"]
-    untouched = patch_loss(checkpoint, dataset, "thumb_medial")
-    assert untouched["rmse_ratio"] == 1.0
+    assert palm["untouched_fraction_without_palm"] > palm["untouched_fraction"]
+    # a lost patch can only turn touched balls into untouched ones
+    thumb = patch_loss(checkpoint, dataset, "thumb_medial")
+    assert thumb["untouched_fraction_without_thumb_medial"] >= thumb["untouched_fraction"]
     with pytest.raises(ValueError, match="no skin patch named 'wrist'"):
         patch_loss(checkpoint, dataset, "wrist")
 
@@ -73,10 +74,11 @@ def test_ball_visibility_split():
     positions[:, 2] = torch.tensor([6.0, 0.0, -2.6])  # under ball 1, but not active
     targets = torch.tensor([[0.0, 0, 0, 6, 0, 0]] * 2)
     pred = targets + torch.tensor([[0.1, 0.1, 0.1, 1.0, 1.0, 1.0]])
-    out = ball_visibility_errors(pred, TactileData(readings, positions, targets), match_balls=False)
-    assert out["seen_rmse_cm"] == pytest.approx(0.1) and out["blind_rmse_cm"] == pytest.approx(1.0)
-    assert out["blind_fraction"] == pytest.approx(0.5)
+    se, touch, swap = ball_errors(pred, TactileData(readings, positions, targets), match_balls=False)
+    assert touch.tolist() == [[True, False]] * 2 and not swap.any()
+    assert se[touch].mean().sqrt() == pytest.approx(0.1) and se[~touch].mean().sqrt() == pytest.approx(1.0)
     # with matching, a prediction of the balls in swapped order is scored against the swap
     swapped = pred[:, [3, 4, 5, 0, 1, 2]]
-    again = ball_visibility_errors(swapped, TactileData(readings, positions, targets), match_balls=True)
-    assert again["seen_rmse_cm"] == pytest.approx(0.1)
+    se, touch, swap = ball_errors(swapped, TactileData(readings, positions, targets), match_balls=True)
+    assert swap.all() and touch.tolist() == [[False, True]] * 2
+    assert se[touch].mean().sqrt() == pytest.approx(0.1)

@@ -1,4 +1,4 @@
-"""Perception checkpoints: unreadable or foreign files are refused naming the file; old ones load."""
+"""Perception checkpoints: unreadable or foreign files are refused naming the file."""
 
 import pytest
 import torch
@@ -23,7 +23,7 @@ def test_bad_checkpoints_fail_naming_the_file(tmp_path):
     torch.save({"format_version": 1, "evil": object()}, tmp_path / "evil.pt")
     with pytest.raises(FileProblem, match="evil.pt"):
         load_checkpoint(tmp_path / "evil.pt")
-    torch.save({"format_version": 1, "actor": {}}, tmp_path / "policy.pt")
+    torch.save({"format_version": 2, "kind": "policy", "actor": {}}, tmp_path / "policy.pt")
     with pytest.raises(CheckpointError, match="policy.pt: not a tacgnn perception checkpoint"):
         load_checkpoint(tmp_path / "policy.pt")
 
@@ -37,21 +37,3 @@ def test_weights_of_another_model_are_refused(dataset, tmp_path):
     torch.save(payload, path)
     with pytest.raises(CheckpointError, match="checkpoint.pt: the weights do not fit"):
         load_model(path)
-
-
-def test_checkpoints_from_before_new_keys_load_as_trained(dataset, tmp_path):
-    """A checkpoint written before the readout/schedule options existed rebuilds the paper's model."""
-    cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, lr_schedule="constant",
-                                         init_output_bias=False, max_samples=64,
-                                         model_kw=dict(use_force=False, force_feature="raw", pool="last"))
-    train(cfg, dataset, tmp_path / "old", log=lambda *_: None)
-    path = tmp_path / "old" / "checkpoint.pt"
-    payload = torch.load(path, weights_only=True)
-    for key in ("lr_schedule", "lr_final", "lr_decay", "warmup_epochs", "init_output_bias"):
-        payload["config"].pop(key)
-    for key in ("force_feature", "pos_scale", "message_layers", "head_layers", "head_hidden", "residual", "pool"):
-        payload["config"]["model"].pop(key)
-    torch.save(payload, path)
-    model, loaded, _ = load_model(path)
-    assert loaded.model.pool == "last" and loaded.lr_schedule == "constant" and not loaded.model.use_force
-    assert model.head[0].in_features == 32

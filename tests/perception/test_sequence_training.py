@@ -6,10 +6,11 @@ import pytest
 import torch
 
 from tacgnn.perception.checkpoint import CheckpointError, load_model
-from tacgnn.perception.sequence_checkpoint import load_sequence_model
-from tacgnn.perception.sequence_evaluation import error_by_steps_since_touch, evaluate_sequence
-from tacgnn.perception.sequence_train_config import SequenceTrainConfig
-from tacgnn.perception.sequence_training import train_sequence
+from tacgnn.perception.evaluation import error_by_steps_since_touch
+from tacgnn.perception.evaluation import evaluate as evaluate_sequence
+from tacgnn.perception.models.temporal import MemoryConfig
+from tacgnn.perception.train_config import TEMPORAL_ROUTE, PerceptionTrainConfig
+from tacgnn.perception.training import train as train_sequence
 from tests.perception.models.test_temporal import small
 from tests.perception.sequence_helpers import episodes, write_dataset
 
@@ -20,9 +21,13 @@ def dataset(tmp_path_factory):
     return write_dataset(tmp_path_factory.mktemp("seq") / "ds", arrays)
 
 
-def config(**kw):
-    return SequenceTrainConfig(**{"model": small("mlp"), "window": 6, "burn_in": 4, "epochs": 2, "batch_size": 4,
-                                  **kw})
+def config(temporal=True, **kw):
+    """A temporal MLP on windows of 6 frames, or (temporal=False) the MLP alone on the same split."""
+    model = small("mlp")
+    route = {**TEMPORAL_ROUTE, "window": 6, "burn_in": 4} if temporal else {"split": "episode"}
+    return PerceptionTrainConfig(**{"model": dataclasses.replace(model.frame, out_dim=6),
+                                    "memory": MemoryConfig(feature=model.feature, hidden=model.hidden),
+                                    **route, "epochs": 2, "batch_size": 4, **kw})
 
 
 def quiet(_):
@@ -48,32 +53,38 @@ def test_a_run_resumed_with_more_epochs_equals_an_uninterrupted_one(tmp_path, da
     assert pooled ** 0.5 == pytest.approx(metrics["position_rmse_cm"], rel=1e-4)
 
 
-def test_kinds_of_checkpoint_are_not_mixed(tmp_path, dataset):
-    from tacgnn.perception.train_config import PerceptionTrainConfig
-    from tacgnn.perception.training import train
-
+def test_kinds_of_model_are_told_apart_on_loading(tmp_path, dataset):
     train_sequence(config(epochs=1), dataset, tmp_path / "temporal", log=quiet)
-    train_sequence(config(epochs=1, temporal=False), dataset, tmp_path / "frame", log=quiet)
-    single = PerceptionTrainConfig.for_task("baoding", "mlp", epochs=1, model_kw={"num_taxels": 96})
-    train(single, dataset, tmp_path / "single", log=quiet)
+    train_sequence(config(False, epochs=1), dataset, tmp_path / "frame", log=quiet)
 
-    with pytest.raises(CheckpointError, match="temporal perception checkpoint.*needs a single-frame one"):
-        load_model(tmp_path / "temporal" / "checkpoint.pt")
-    with pytest.raises(CheckpointError, match="a single-frame perception checkpoint.*needs a temporal one"):
-        load_sequence_model(tmp_path / "single" / "checkpoint.pt")
-    with pytest.raises(CheckpointError, match="a single-frame model.*needs a temporal one"):
-        load_sequence_model(tmp_path / "frame" / "checkpoint.pt", temporal=True)
-    with pytest.raises(CheckpointError, match="a temporal model.*needs a single-frame one"):
-        load_sequence_model(tmp_path / "temporal" / "checkpoint.pt", temporal=False)
-    model, cfg, _ = load_sequence_model(tmp_path / "temporal" / "checkpoint.pt", temporal=True)
-    assert cfg.temporal and model.cfg == cfg.model
+    with pytest.raises(CheckpointError, match="a single-frame mlp model.*needs a temporal one"):
+        load_model(tmp_path / "frame" / "checkpoint.pt", temporal=True)
+    with pytest.raises(CheckpointError, match="a temporal mlp model.*needs a single-frame one"):
+        load_model(tmp_path / "temporal" / "checkpoint.pt", temporal=False)
+    model, cfg, _ = load_model(tmp_path / "temporal" / "checkpoint.pt")
+    assert cfg.temporal and model.cfg.feature == cfg.memory.feature
+    frame, cfg, _ = load_model(tmp_path / "frame" / "checkpoint.pt")
+    assert not cfg.temporal and cfg.window == 1 and frame.out_dim == 6
+
+
+def test_checkpoints_of_another_version_or_lacking_a_key_are_refused(tmp_path, dataset):
+    train_sequence(config(epochs=1), dataset, tmp_path / "run", log=quiet)
+    path = tmp_path / "run" / "checkpoint.pt"
+    payload = torch.load(path, weights_only=True)
+    torch.save({**payload, "format_version": 1}, tmp_path / "v1.pt")
+    with pytest.raises(CheckpointError, match=r"v1.pt: a perception checkpoint of format version 1, this code reads "
+                                              r"version 2; convert it once with .*convert_checkpoints.py"):
+        load_model(tmp_path / "v1.pt")
+    del payload["config"]["memory"]["hidden"]
+    torch.save(payload, tmp_path / "lacking.pt")
+    with pytest.raises(CheckpointError, match=r"lacking.pt: its config lacks keys \['memory.hidden'\]"):
+        load_model(tmp_path / "lacking.pt")
 
 
 def test_cli_trains_evaluates_and_names_bad_windows(tmp_path, dataset, capsys):
     from tacgnn.cli import main
 
-    frame = ["--set", "model.frame.num_taxels=96", "model.feature=16", "model.hidden=16", "window=4", "burn_in=2",
-             "batch_size=4"]
+    frame = ["--set", "memory.feature=16", "memory.hidden=16", "window=4", "burn_in=2", "batch_size=4"]
     assert main(["train-perception", "--temporal", "--model", "mlp", "--dataset", str(dataset), "--run",
                  str(tmp_path / "t"), "--epochs", "1", *frame]) == 0
     assert main(["eval-perception", "--checkpoint", str(tmp_path / "t" / "checkpoint.pt"), "--dataset",
@@ -81,17 +92,16 @@ def test_cli_trains_evaluates_and_names_bad_windows(tmp_path, dataset, capsys):
     out = capsys.readouterr().out
     assert "touched_rmse_cm" in out and "untouched_rmse_cm" in out
     code = main(["train-perception", "--temporal", "--model", "mlp", "--dataset", str(dataset), "--run",
-                 str(tmp_path / "long"), "--window", "21", "--set", "model.frame.num_taxels=96"])
+                 str(tmp_path / "long"), "--window", "21"])
     err = capsys.readouterr().err
     assert code == 2 and "window of 21 frames is longer than every episode" in err and len(err.splitlines()) == 1
     code = main(["train-perception", "--temporal", "--model", "gcn", "--dataset", str(dataset), "--run",
                  str(tmp_path / "gcn")])
-    assert code == 2 and "model.frame.name" in capsys.readouterr().err
+    assert code == 2 and "model.name" in capsys.readouterr().err
 
 
 def test_single_frame_on_the_same_split_reads_frames_one_by_one(tmp_path, dataset):
-    cfg = dataclasses.replace(config(epochs=1), temporal=False, batch_size=16)
-    final = train_sequence(cfg, dataset, tmp_path / "f", log=quiet)
+    final = train_sequence(config(False, epochs=1, batch_size=16), dataset, tmp_path / "f", log=quiet)
     assert 0 < final["test/position_rmse_cm"] < 10
 
 

@@ -63,71 +63,39 @@ def _recording_policy(path: str, env) -> Any:
 
 
 def cmd_train_perception(args) -> int:
-    from tacgnn.perception.train_config import PerceptionTrainConfig
+    """Train a perception model: single-frame (split by frame, or --by-episode) or --temporal."""
+    import dataclasses
 
-    if args.temporal or args.by_episode:
-        return _train_sequence_perception(args)
-    if args.window is not None or args.burn_in is not None:
+    from tacgnn.perception.train_config import TEMPORAL_ROUTE, PerceptionTrainConfig
+
+    if args.temporal and args.by_episode:
+        raise ConfigError("--temporal and --by-episode exclude each other (--by-episode is the single-frame model)")
+    if not args.temporal and (args.window is not None or args.burn_in is not None):
         raise ConfigError("--window and --burn-in go with --temporal")
     cfg = PerceptionTrainConfig.for_task(args.task, args.model, epochs=args.epochs, seed=args.seed,
                                          max_samples=args.max_samples,
                                          model_kw={"channels": args.channels} if args.channels else {})
+    given = {"window": args.window, "burn_in": args.burn_in}
+    route: dict[str, Any] = {**TEMPORAL_ROUTE, **{k: v for k, v in given.items() if v is not None}} \
+        if args.temporal else {"split": "episode"} if args.by_episode else {}
+    if route and args.task != "baoding":
+        raise ConfigError(f"--temporal/--by-episode train on Baoding sequences (--task baoding), not {args.task!r}")
+    cfg = dataclasses.replace(cfg, **route)
     if args.set:
         cfg = override(cfg, parse_overrides(args.set))
     check_writable(args.run, "run folder")
     from tacgnn.perception.training import train
 
     final = train(cfg, args.dataset, args.run, resume=args.resume)
-    _final_line(final, args.run)
-    return 0
-
-
-def _final_line(final: dict[str, Any], run: str) -> None:
     print("final:", {k: round(v, 4) for k, v in final.items() if isinstance(v, float)})
-    print(f"saved {run}/checkpoint.pt")
-
-
-def _train_sequence_perception(args) -> int:
-    """train-perception --temporal / --by-episode: windows of episodes (tacgnn.perception.sequence_training)."""
-    from tacgnn.perception.models.temporal import TemporalModelConfig
-    from tacgnn.perception.sequence_train_config import SequenceTrainConfig
-    from tacgnn.perception.train_config import default_model_config
-
-    if args.task != "baoding":
-        raise ConfigError(f"--temporal/--by-episode train on Baoding sequences (--task baoding), not {args.task!r}")
-    if args.temporal and args.by_episode:
-        raise ConfigError("--temporal and --by-episode exclude each other (--by-episode is the single-frame model)")
-    if args.by_episode and (args.window is not None or args.burn_in is not None):
-        raise ConfigError("--window and --burn-in go with --temporal")
-    frame = default_model_config(name=args.model, **({"channels": args.channels} if args.channels else {}))
-    given = {"window": args.window, "burn_in": args.burn_in}
-    batch: dict[str, Any] = {} if args.temporal else {"batch_size": 32}
-    cfg = SequenceTrainConfig(model=TemporalModelConfig(frame=frame), temporal=args.temporal, epochs=args.epochs,
-                              seed=args.seed, max_frames=args.max_samples, **batch,
-                              **{k: v for k, v in given.items() if v is not None})
-    if args.set:
-        cfg = override(cfg, parse_overrides(args.set))
-    check_writable(args.run, "run folder")
-    from tacgnn.perception.sequence_training import train_sequence
-
-    final = train_sequence(cfg, args.dataset, args.run, resume=args.resume)
-    _final_line(final, args.run)
+    print(f"saved {args.run}/checkpoint.pt")
     return 0
 
 
 def cmd_eval_perception(args) -> int:
     from tacgnn.datasets.store import read_manifest
     from tacgnn.perception.evaluation import evaluate, patch_loss, patch_taxels
-    from tacgnn.perception.sequence_checkpoint import is_sequence_checkpoint
 
-    if is_sequence_checkpoint(args.checkpoint):  # temporal or --by-episode: whole test episodes
-        from tacgnn.perception.sequence_evaluation import evaluate_sequence
-
-        if args.lose_patch or args.dead != [0.0]:
-            raise ConfigError(f"{args.checkpoint}: --dead and --lose-patch take single-frame checkpoints")
-        metrics = evaluate_sequence(args.checkpoint, args.dataset, whole=args.whole)
-        print(", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
-        return 0
     for patch in args.lose_patch:  # an unknown patch name fails before any evaluation
         patch_taxels(read_manifest(args.dataset)["metadata"]["skin"], patch)
     for dead in args.dead:

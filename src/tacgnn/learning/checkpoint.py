@@ -31,7 +31,9 @@ from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.files import atomic_write, read_weights
 from tacgnn.learning.config import ARCHITECTURE_KEYS, PPOConfig
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: the perception inside holds its whole config (no key left to defaults) and its per-env state,
+single-frame or temporal alike; `experiments/convert_checkpoints.py` converts version 1 files."""
 CHECKPOINT_KEYS = ("format_version", "iteration", "env_config", "ppo_config", "obs_dim", "num_actions",
                    "actor_state_dict", "critic_state_dict", "optimizer_state_dict", "rng", "env_state")
 # What acting needs: an exported policy holds these (and the perception, for a 'perceived' policy).
@@ -96,7 +98,8 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         raise CheckpointError(f"{path} is not a tacgnn PPO checkpoint (no format_version)")
     if checkpoint["format_version"] != FORMAT_VERSION:
         raise CheckpointError(f"checkpoint {path} has format version {checkpoint['format_version']}, "
-                              f"this code reads {FORMAT_VERSION}")
+                              f"this code reads {FORMAT_VERSION}; convert it once with "
+                              f"`python experiments/convert_checkpoints.py {path}`")
     if checkpoint.get("kind") == "policy":
         raise CheckpointError(f"{path} is an exported policy (no critic, optimiser or env state): it can be "
                               "evaluated, not resumed or used as init_from")
@@ -111,8 +114,12 @@ def load_policy_file(path: str | Path) -> dict[str, Any]:
     data = read_weights(path, "policy file")
     if isinstance(data, dict) and data.get("kind") == "policy":
         missing = [k for k in POLICY_KEYS if k not in data]
-        if missing or data.get("format_version") != FORMAT_VERSION:
-            raise CheckpointError(f"{path}: exported policy of another format version or lacking {missing}")
+        if data.get("format_version") != FORMAT_VERSION:
+            raise CheckpointError(f"{path}: an exported policy of format version {data.get('format_version')!r}, "
+                                  f"this code reads {FORMAT_VERSION}; convert it once with "
+                                  f"`python experiments/convert_checkpoints.py {path}`")
+        if missing:
+            raise CheckpointError(f"{path}: exported policy lacking {missing}")
         return data
     return load_checkpoint(path)
 

@@ -27,14 +27,14 @@ import numpy as np
 
 from tacgnn.config import ConfigError, override, parse_overrides, to_dict
 from tacgnn.envs.baoding import BaodingEnv
-from tacgnn.files import FileProblem, atomic_write_text, check_writable
+from tacgnn.files import FileProblem, atomic_write_text, check_writable, read_weights
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
-from tacgnn.learning.online_temporal import make_online_perception
 from tacgnn.learning.policy import load_perception, perception_from_checkpoint, policy_from_checkpoint
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
+from tacgnn.perception.checkpoint import stored_config
 from tacgnn.perception.models import PerceptionModelConfig
-from tacgnn.perception.sequence_checkpoint import is_sequence_checkpoint, load_sequence_model
+from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.provenance import provenance
 
 TASKS_180: tuple[Literal["simple", "middle", "hard", "hold"], ...] = (  # the paper's three, and Simple with a 1 s hold
@@ -90,27 +90,16 @@ def seed_bootstrap_difference(
 
 
 def perception_from_file(path: str | Path, skin: dict) -> OnlinePerception:
-    """The frozen perception in `path`: a `train-perception` checkpoint for the Baoding balls,
-    or the perception a 'perceived' policy checkpoint was trained with."""
+    """The frozen perception in `path`: a `train-perception` checkpoint for the Baoding balls
+    (single-frame or temporal), or the perception a 'perceived' policy checkpoint was trained with."""
     if not Path(path).is_file():
         raise FileNotFoundError(f"perception file not found: {path}")
-    if is_sequence_checkpoint(path):  # train-perception --temporal (a filter per env) or --by-episode
-        trained, stored, _ = load_sequence_model(path)
-        if stored.temporal:
-            cfg = OnlinePerceptionConfig(model=stored.model.frame, pretrained=str(path), temporal=True,
-                                         window=1, buffer_size=32, batch_size=32, epochs=0)
-            return make_online_perception(cfg, skin)
-        frame = replace(stored.model.frame, out_dim=stored.model.out_dim)
-        single = OnlinePerception(OnlinePerceptionConfig(model=frame, buffer_size=32, batch_size=32, epochs=0), skin)
-        single.model.load_state_dict(trained.state_dict())
-        return single
-    try:
-        payload = load_perception_checkpoint(path)
-    except (ValueError, FileProblem):
-        payload = None  # not a perception checkpoint: perhaps a policy
-    if payload is not None:
-        model = PerceptionModelConfig(name=payload["config"]["model"]["name"])
-        cfg = OnlinePerceptionConfig(model=model, pretrained=str(path), buffer_size=32, batch_size=32, epochs=0)
+    raw = read_weights(Path(path), "perception or policy file")
+    if not (isinstance(raw, dict) and "actor_state_dict" in raw):  # a perception checkpoint, or it says why not
+        stored = stored_config(PerceptionTrainConfig, load_perception_checkpoint(path)["config"], path, "config")
+        # the checkpoint's task, skin and architecture are checked and taken where it is read (`with_pretrained`)
+        cfg = OnlinePerceptionConfig(model=PerceptionModelConfig(name=stored.model.name), pretrained=str(path),
+                                     temporal=stored.temporal, window=1, buffer_size=32, batch_size=32, epochs=0)
         return OnlinePerception(cfg, skin)
     try:
         perception = load_perception(path)
@@ -162,7 +151,7 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
         perception = perception_from_file(perception_from, to_dict(env_cfg.skin))
         env_cfg = replace(env_cfg, obs_mode="perceived", tactile=True)
     if perception is None and env_cfg.obs_mode == "perceived":
-        perception = perception_from_checkpoint(data)
+        perception = perception_from_checkpoint(data, checkpoint)
     if isinstance(perception, OnlinePerception) and perception.readings.shape[1] != env_cfg.skin.num_taxels:
         raise ckpt.CheckpointError(f"the perception reads {perception.readings.shape[1]} taxels, "
                          f"the env's skin has {env_cfg.skin.num_taxels}")

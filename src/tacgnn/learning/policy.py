@@ -21,7 +21,7 @@ from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
-from tacgnn.learning.online_temporal import make_online_perception
+from tacgnn.perception.checkpoint import stored_config
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
@@ -74,17 +74,20 @@ def policy_from_checkpoint(data: dict, path: str | Path) -> Callable[[np.ndarray
 
 def load_perception(path: str | Path) -> OnlinePerception | None:
     """The perception a 'perceived' policy was trained with (None for other observation modes)."""
-    return perception_from_checkpoint(ckpt.load_policy_file(path))
+    return perception_from_checkpoint(ckpt.load_policy_file(path), path)
 
 
-def perception_from_checkpoint(data: dict) -> OnlinePerception | None:
-    """`load_perception` of a policy file already read (`checkpoint.load_policy_file`)."""
+def perception_from_checkpoint(data: dict, path: str | Path = "<policy>") -> OnlinePerception | None:
+    """`load_perception` of a policy file already read (`checkpoint.load_policy_file`); its perception
+    config must hold every key (a file of an earlier format is converted, not filled in)."""
     if "perception" not in data:
         return None
     state = data["perception"]
-    cfg = from_dict(OnlinePerceptionConfig, {**state["config"], "pretrained": "", "anchor_dataset": ""})  # acting
-    cfg = replace(cfg, buffer_size=max(cfg.batch_size, cfg.window if cfg.temporal else 1))  # no frames to keep
-    perception = make_online_perception(cfg, data["env_config"]["skin"])
+    cfg = stored_config(OnlinePerceptionConfig, state["config"], path, "perception config")
+    # acting: no pretrained file or anchor to read, no frames to keep
+    cfg = replace(cfg, pretrained="", anchor_dataset="",
+                  buffer_size=max(cfg.batch_size, cfg.window if cfg.temporal else 1))
+    perception = OnlinePerception(cfg, data["env_config"]["skin"])
     perception.model.load_state_dict(state["model"])
     perception.updates = state["updates"]
     return perception

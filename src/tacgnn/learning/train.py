@@ -33,8 +33,7 @@ from tacgnn.files import FileProblem, atomic_write_text, remove_stale_temp_files
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning import distributed
 from tacgnn.learning.config import ARCHITECTURE_KEYS, PPOConfig
-from tacgnn.learning.online_perception import OnlinePerceptionConfig
-from tacgnn.learning.online_temporal import make_online_perception
+from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.rsl_env import RslBaodingEnv
 from tacgnn.learning.runner import LOG_FILE, Runner
 
@@ -87,7 +86,7 @@ def train(env_cfg: BaodingConfig, ppo_cfg: PPOConfig, run_dir: str | Path | None
 
     seed_everything(distributed.rank_seed(ppo_cfg.seed, dist))
     perception = (None if perception_cfg is None
-                  else make_online_perception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed))
+                  else OnlinePerception(perception_cfg, to_dict(env_cfg.skin), ppo_cfg.seed))
     env = RslBaodingEnv(_rank_env_config(env_cfg, dist), ppo_cfg.reward_scale, ppo_cfg.bootstrap_time_outs,
                         perception=perception, privileged_critic=ppo_cfg.privileged_critic)
     if perception is not None:

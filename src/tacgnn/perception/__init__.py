@@ -4,6 +4,8 @@
 * ``graph_ops``, ``graph_numba``: kNN and farthest point sampling (torch, numba).
 * ``objectives``: what each task predicts, its loss and its reported errors.
 * ``data``: a dataset in memory and its split; ``rest_positions``: taxels at rest.
-* ``train_config``, ``training``, ``checkpoint``: offline training and its files.
-* ``evaluation``: errors on a test split, with dead taxels or a lost patch.
+* ``sequences``: episodes, windows of consecutive frames, the split by episode.
+* ``train_config``, ``training``, ``checkpoint``: offline training and its files, one of each for
+  single-frame and temporal models (a single-frame model reads windows of one frame).
+* ``evaluation``: errors on a test split, with dead taxels or a lost patch, touched and untouched balls.
 """

@@ -1,43 +1,81 @@
 """Perception checkpoints: what a training run writes after every epoch and how it is read back.
 
 A checkpoint is a dict of tensors and plain data (``torch.load(weights_only=True)`` reads
-it, so no code runs from a file): ``format_version``, ``config`` (the training config as a
-dict), ``epoch``, ``model`` and ``optimizer`` state, ``history`` (per-epoch metrics),
-``dataset`` (path, taxel count, kind, object) and ``rest_positions_cm`` (the GCN's fixed
-graph; None for the other models).
+it, so no code runs from a file): ``format_version`` (``CHECKPOINT_VERSION``), ``kind``
+("perception"), ``config`` (the whole :class:`PerceptionTrainConfig` as a dict, every key),
+``epoch``, ``model`` and ``optimizer`` state, ``history`` (per-epoch metrics), ``dataset``
+(path, taxel count, kind, object, frames) and ``rest_positions_cm`` (the GCN's fixed graph;
+None for the other models). Single-frame and temporal models share the format; ``config.temporal``
+tells them apart.
+
+A file of another format version is refused, naming both versions:
+``experiments/convert_checkpoints.py`` converts older files once.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import io
 from pathlib import Path
+from typing import Any
 
 import torch
+from torch import nn
 
-from tacgnn.config import from_dict
+from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.files import atomic_write, read_weights
-from tacgnn.perception.models import PerceptionModel, PerceptionModelConfig, build_model
+from tacgnn.perception.models import PerceptionModelConfig, build_model
+from tacgnn.perception.models.temporal import MemoryConfig, TemporalModelConfig, TemporalPerception
 from tacgnn.perception.train_config import PerceptionTrainConfig
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+KIND = "perception"
+CHECKPOINT_KEYS = ("config", "epoch", "model", "optimizer", "history", "dataset", "rest_positions_cm")
+CONVERTER = "experiments/convert_checkpoints.py"
 
 
 class CheckpointError(ValueError):
     """A file that is not a perception checkpoint, or whose weights do not fit its config; names the file."""
 
-#: Values of config keys added after format version 1 was fixed, as checkpoints without them
-#: were trained (the paper's setup); filled in on loading, so old checkpoints keep working.
-LEGACY_TRAIN_VALUES = {"lr_schedule": "constant", "lr_final": 0.01, "lr_decay": 0.8, "warmup_epochs": 0.0,
-                       "init_output_bias": False}
-LEGACY_MODEL_VALUES = {"force_feature": "raw", "pos_scale": 1.0, "message_layers": 2, "head_layers": 2,
-                       "head_hidden": 0, "residual": False, "pool": "last", "joint_inputs": 0}
-
 
 def save_checkpoint(path: Path, payload: dict) -> None:
-    """Write `payload` atomically: a killed run leaves the previous checkpoint, never half of one."""
+    """Write `payload` (with the format version and kind) atomically: a killed run leaves the
+    previous checkpoint, never half of one."""
     buffer = io.BytesIO()
-    torch.save(payload, buffer)
+    torch.save({"format_version": CHECKPOINT_VERSION, "kind": KIND, **payload}, buffer)
     atomic_write(path, lambda fh: fh.write(buffer.getbuffer()))
+
+
+def check_version(data: Any, path: str | Path, what: str, version: int) -> None:
+    """Raise CheckpointError naming the file unless `data` is a dict of format `version`."""
+    if not isinstance(data, dict) or "format_version" not in data:
+        raise CheckpointError(f"{path}: not a tacgnn {what} (no format_version)")
+    if data["format_version"] != version:
+        raise CheckpointError(f"{path}: a {what} of format version {data['format_version']!r}, this code reads "
+                              f"version {version}; convert it once with `python {CONVERTER} {path}`")
+
+
+def missing_keys(default: Any, stored: Any, prefix: str = "") -> list[str]:
+    """Dotted keys of the config tree `default` (``to_dict`` of a config) that `stored` lacks."""
+    if not isinstance(default, dict) or not isinstance(stored, dict):
+        return []
+    out = []
+    for key, value in default.items():
+        name = f"{prefix}{key}"
+        out += [name] if key not in stored else missing_keys(value, stored[key], f"{name}.")
+    return out
+
+
+def stored_config(cls: type, data: Any, path: str | Path, what: str):
+    """Config `cls` from a checkpoint's dict, which must hold every key (none is filled in)."""
+    lacking = missing_keys(to_dict(cls()), data) if isinstance(data, dict) else []
+    if lacking:
+        raise CheckpointError(f"{path}: its {what} lacks keys {lacking}; convert it once with `python {CONVERTER} "
+                              f"{path}`")
+    try:
+        return from_dict(cls, data)
+    except ConfigError as err:
+        raise CheckpointError(f"{path}: its {what} does not fit this code: {err}") from None
 
 
 def load_checkpoint(path: str | Path) -> dict:
@@ -46,45 +84,55 @@ def load_checkpoint(path: str | Path) -> dict:
     Raises FileNotFoundError (missing), :class:`tacgnn.files.FileProblem` (empty, truncated,
     not a torch file, or holding objects other than tensors and plain data) and
     :class:`CheckpointError` (a torch file that is not a perception checkpoint of this
-    format), each naming the file.
+    format version), each naming the file.
     """
-    path = Path(path)
-    payload = read_weights(path, "perception checkpoint")
-    if not isinstance(payload, dict) or payload.get("format_version") != CHECKPOINT_VERSION:
-        raise CheckpointError(f"{path}: not a tacgnn perception checkpoint of version {CHECKPOINT_VERSION}")
-    if payload.get("kind") == "sequence":  # tacgnn.perception.sequence_checkpoint
-        temporal = isinstance(payload.get("config"), dict) and payload["config"].get("temporal", True)
-        raise CheckpointError(f"{path}: a {'temporal' if temporal else 'sequence-trained'} perception checkpoint "
-                              "(train-perception --temporal/--by-episode); this needs a single-frame one")
-    if not {"config", "model", "dataset"} <= payload.keys():  # e.g. a policy checkpoint
-        raise CheckpointError(f"{path}: not a tacgnn perception checkpoint (no model, config and dataset)")
-    config = payload.get("config")
-    if isinstance(config, dict):  # written before these keys existed: it was trained with their old values
-        for key, value in LEGACY_TRAIN_VALUES.items():
-            config.setdefault(key, value)
-        if isinstance(config.get("model"), dict):
-            for key, value in LEGACY_MODEL_VALUES.items():
-                config["model"].setdefault(key, value)
+    payload = read_weights(Path(path), "perception checkpoint")
+    check_version(payload, path, "perception checkpoint", CHECKPOINT_VERSION)
+    if payload.get("kind") != KIND:
+        raise CheckpointError(f"{path}: not a tacgnn perception checkpoint (kind {payload.get('kind')!r}; a policy "
+                              "holds its perception inside)")
+    lacking = [k for k in CHECKPOINT_KEYS if k not in payload]
+    if lacking:
+        raise CheckpointError(f"{path}: perception checkpoint lacking {lacking}")
     return payload
 
 
-def make_model(cfg: PerceptionModelConfig, rest_positions_cm: torch.Tensor | None) -> PerceptionModel:
-    """The model of `cfg`; the rest positions (cm) are read by the GCN only."""
-    return build_model(cfg, rest_positions=rest_positions_cm if cfg.name == "gcn" else None)
+def build_perception(model: PerceptionModelConfig, temporal: bool, memory: MemoryConfig,
+                     rest_positions_cm: torch.Tensor | None = None) -> nn.Module:
+    """The frame model of `model`, or (`temporal`) it under a `memory`. The rest positions (cm) are
+    read by the GCN only."""
+    if temporal:
+        return TemporalPerception(TemporalModelConfig.of(model, memory))
+    return build_model(model, rest_positions=rest_positions_cm if model.name == "gcn" else None)
 
 
-def load_model(path: str | Path) -> tuple[PerceptionModel, PerceptionTrainConfig, dict]:
-    """The trained model (eval mode), its training config, and the dataset metadata it saw."""
+def load_model(path: str | Path, temporal: bool | None = None) -> tuple[nn.Module, PerceptionTrainConfig, dict]:
+    """The trained model (eval mode), its training config, and the dataset metadata it saw.
+
+    `temporal` = True refuses a single-frame model, False a temporal one (None takes either).
+    """
     payload = load_checkpoint(path)
-    cfg = from_dict(PerceptionTrainConfig, payload["config"])
-    rest = payload.get("rest_positions_cm")
-    if cfg.model.name == "gcn" and (not isinstance(rest, torch.Tensor) or rest.shape != (cfg.model.num_taxels, 3)):
+    cfg = stored_config(PerceptionTrainConfig, payload["config"], path, "config")
+    if temporal is not None and cfg.temporal != temporal:
+        have, want = ("temporal", "single-frame") if cfg.temporal else ("single-frame", "temporal")
+        raise CheckpointError(f"{path}: a {have} {cfg.model.name} model (temporal={str(cfg.temporal).lower()}); "
+                              f"this needs a {want} one")
+    rest = payload["rest_positions_cm"]
+    if cfg.model.name == "gcn" and not cfg.temporal and (
+            not isinstance(rest, torch.Tensor) or rest.shape != (cfg.model.num_taxels, 3)):
         raise CheckpointError(f"{path}: a GCN checkpoint without the rest positions ({cfg.model.num_taxels}, 3) "
                               "its graph was built from")
-    model = make_model(cfg.model, rest)
+    model = build_perception(cfg.model, cfg.temporal, cfg.memory, rest)
     try:
         model.load_state_dict(payload["model"])
     except RuntimeError as err:  # weights of another architecture than the stored config
         first = str(err).strip().splitlines()[0]
         raise CheckpointError(f"{path}: the weights do not fit the model of its config ({first})") from None
     return model.eval(), cfg, payload["dataset"]
+
+
+def with_taxels(cfg: PerceptionTrainConfig, num_taxels: int) -> PerceptionTrainConfig:
+    """`cfg` with its model reading `num_taxels` taxels (a dataset's skin)."""
+    if cfg.model.num_taxels == num_taxels:
+        return cfg
+    return dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, num_taxels=num_taxels))

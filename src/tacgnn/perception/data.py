@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol, TypeVar
 
 import torch
 
@@ -63,8 +64,20 @@ def load_tactile(root: str | Path, task: TaskName, max_samples: int = 0, joints:
                        torch.from_numpy(data["joint_pos"]).float() if joints else None)
 
 
-def split(data: TactileData, train_fraction: float, seed: int) -> tuple[TactileData, TactileData]:
-    """Seeded random split into (train, test) by frame."""
+class Rows(Protocol):
+    def __len__(self) -> int: ...
+
+    def subset(self, idx: torch.Tensor): ...
+
+
+R = TypeVar("R", bound=Rows)
+
+
+def split(data: R, train_fraction: float, seed: int) -> tuple[R, R]:
+    """Seeded random split into (train, test) by frame (of frames or sequence data); each side keeps
+    at least one frame."""
+    if len(data) < 2:
+        raise DatasetError(f"the data holds {len(data)} frame(s); a train/test split needs at least 2")
     order = torch.randperm(len(data), generator=torch.Generator().manual_seed(seed))
-    cut = int(round(train_fraction * len(data)))
+    cut = min(max(1, int(round(train_fraction * len(data)))), len(data) - 1)
     return data.subset(order[:cut]), data.subset(order[cut:])

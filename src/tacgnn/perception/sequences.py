@@ -51,6 +51,10 @@ class SequenceData:
         """Rows `idx` (kept in the given order)."""
         return SequenceData(self.frames.subset(idx), self.actions[idx], self.episode[idx], self.step[idx])
 
+    def with_frames(self, frames: TactileData) -> SequenceData:
+        """The same rows with other frames (e.g. other readings)."""
+        return SequenceData(frames, self.actions, self.episode, self.step)
+
     def run_starts(self) -> torch.Tensor:
         """(N,) bool: frames that start a run of consecutive steps of one episode (an episode's
         first frame, or the frame after a gap in its steps)."""
@@ -70,6 +74,13 @@ class SequenceData:
     def episodes(self) -> torch.Tensor:
         """The episode ids, in order."""
         return torch.unique_consecutive(self.episode)
+
+
+def as_sequence(frames: TactileData) -> SequenceData:
+    """Frames without episodes (a dataset recorded for single frames) as sequence data: each frame an
+    episode of its own, at step 0, with no actions; a single-frame model reads them in windows of one."""
+    n = len(frames)
+    return SequenceData(frames, torch.zeros(n, 0), torch.arange(n), torch.zeros(n, dtype=torch.long))
 
 
 def load_sequences(root: str | Path, max_frames: int = 0) -> SequenceData:

@@ -1,14 +1,23 @@
-"""The offline training loop of a perception model (``tacgnn train-perception``).
+"""The offline training loop of every perception model (``tacgnn train-perception``).
+
+One step, for `batch_size` windows of `window` consecutive frames drawn from the training
+episodes (a single-frame model: windows of one frame):
+
+    burn-in   a temporal model: the `burn_in` frames before each window, without gradient:
+              the state the model would carry into the window (fresh where the episode
+              starts inside)
+    window    the frames with gradient from that (detached) state; the loss is the mean over
+              all frames of the task's loss (for the balls, permutation-invariant per frame)
 
 A run folder holds `checkpoint.pt` (written atomically after every epoch, see
 :mod:`tacgnn.perception.checkpoint`), `history.json` (per-epoch metrics) and TensorBoard
-events. ``resume=True`` continues from the checkpoint; the batch order of epoch e is
-drawn from seed + e, so a resumed run equals an uninterrupted one.
+events. ``resume=True`` continues from the checkpoint; the windows of epoch e are drawn from
+seed + e, so a resumed run (with as many or, with a schedule that does not depend on the
+number of epochs, more epochs) equals an uninterrupted one.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
@@ -16,21 +25,24 @@ from collections.abc import Callable
 from pathlib import Path
 
 import torch
+from torch import Tensor, nn
 
 from tacgnn.config import to_dict
-from tacgnn.datasets.store import read_manifest
+from tacgnn.datasets.store import DatasetError, read_manifest
 from tacgnn.files import atomic_write_text
 from tacgnn.perception.checkpoint import (
-    CHECKPOINT_VERSION,
     CheckpointError,
+    build_perception,
     load_checkpoint,
-    make_model,
     save_checkpoint,
+    with_taxels,
 )
-from tacgnn.perception.data import load_tactile, split
-from tacgnn.perception.evaluation import predict
+from tacgnn.perception.evaluation import frame_inputs, load_data, model_metrics, split_data
+from tacgnn.perception.models.temporal import TemporalPerception
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.rest_positions import rest_positions_cm as skin_rest_positions_cm
+from tacgnn.perception.sequences import SequenceData, burn_in_rows, check_windows, join_episodes, load_sequences
+from tacgnn.perception.sequences import window_starts as sequence_window_starts
 from tacgnn.perception.train_config import PerceptionTrainConfig
 
 
@@ -49,7 +61,7 @@ def lr_factor(cfg: PerceptionTrainConfig, step: int, total_steps: int, steps_per
     return f * min(1.0, (step + 1) / warm) if warm > 0 else f
 
 
-def backward_checked(optim: torch.optim.Optimizer, loss: torch.Tensor, where: str) -> None:
+def backward_checked(optim: torch.optim.Optimizer, loss: Tensor, where: str) -> None:
     """Fill the gradients of `loss`, or raise before the optimiser can step on NaN or Inf.
 
     A finite loss can still give an infinite gradient (an overflow in a layer); one such
@@ -65,7 +77,7 @@ def backward_checked(optim: torch.optim.Optimizer, loss: torch.Tensor, where: st
         raise FloatingPointError(f"non-finite gradient {where}; weights left unchanged")
 
 
-def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.Adam:
+def make_optimizer(model: nn.Module, lr: float, weight_decay: float) -> torch.optim.Adam:
     """Adam; the fused kernel where this torch has it (~5x faster steps on CPU, same algorithm)."""
     try:
         return torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay, fused=True)
@@ -73,9 +85,65 @@ def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float) -> to
         return torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
 
 
+def init_output_bias(model: nn.Module, mean: Tensor) -> None:
+    """Start a model's output at the mean label: the temporal model's own way, else the last layer's bias."""
+    if isinstance(model, TemporalPerception):
+        model.init_output(mean)
+        return
+    last = [m for m in model.modules() if isinstance(m, nn.Linear)][-1]
+    with torch.no_grad():
+        last.bias.copy_(mean)
+
+
+def window_loss(model: nn.Module, data: SequenceData, starts: Tensor, window: int, burn_in: int,
+                objective: Objective) -> Tensor:
+    """The loss of windows of `window` frames starting at rows `starts`; a temporal model's state is
+    warmed up over their `burn_in` earlier frames, a frame model reads each frame alone."""
+    if not isinstance(model, TemporalPerception):
+        rows = starts if window == 1 else (starts.unsqueeze(1) + torch.arange(window)).reshape(-1)
+        return objective.loss(model(*frame_inputs(model, data.frames, rows)), data.frames.targets[rows])
+    rows = starts.unsqueeze(1) + torch.arange(window)
+    check_windows(data, rows)
+    state = None
+    if burn_in:
+        burn, valid = burn_in_rows(data, starts, burn_in)
+        with torch.no_grad():
+            _, state = model(*window_inputs(data, burn, model), valid=valid)
+    out, _ = model(*window_inputs(data, rows, model), state=state)
+    return objective.loss(out.reshape(-1, out.shape[-1]), data.frames.targets[rows].reshape(-1, out.shape[-1]))
+
+
+def window_inputs(data: SequenceData, rows: Tensor,
+                  model: TemporalPerception) -> tuple[Tensor, Tensor, Tensor | None, Tensor | None]:
+    """(readings, positions, joints, actions) of window rows (B, L), as the temporal model reads them."""
+    cfg, f = model.cfg, data.frames
+    return (f.readings[rows], f.positions[rows], f.joints[rows] if cfg.joints and f.joints is not None else None,
+            data.actions[rows] if cfg.actions else None)
+
+
+def window_starts(data: SequenceData, window: int) -> Tensor:
+    """Rows where a window can start (every row for a window of one)."""
+    return torch.arange(len(data)) if window == 1 else sequence_window_starts(data, window)
+
+
+def epoch_order(starts: Tensor, draws: int, gen: torch.Generator) -> Tensor:
+    """`draws` window starts: permutations of `starts` one after another, cut to `draws`."""
+    return starts[torch.cat([torch.randperm(len(starts), generator=gen) for _ in range(-(-draws // len(starts)))])
+                  [:draws]]
+
+
+def load_extra(path: str, num_taxels: int) -> SequenceData:
+    """An `extra_train` dataset (every frame), checked against the model's taxels."""
+    data = load_sequences(path)
+    if data.frames.readings.shape[1] != num_taxels:
+        raise DatasetError(f"{path} (extra_train): has {data.frames.readings.shape[1]} taxels, "
+                           f"the training dataset {num_taxels}")
+    return data
+
+
 def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, resume: bool = False,
-          log: Callable[[str], object] = print, rest_positions_cm: torch.Tensor | None = None) -> dict:
-    """Train on `dataset`; return the final metrics (train and test).
+          log: Callable[[str], object] = print, rest_positions_cm: Tensor | None = None) -> dict:
+    """Train on `dataset`; return the last epoch's metrics (train with a split by frame, and test).
 
     The GCN's rest taxel positions (cm) are `rest_positions_cm` if given, else those of the
     dataset's skin on the hand at zero joint angles.
@@ -87,29 +155,34 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt_path = run_dir / "checkpoint.pt"
     meta = read_manifest(dataset)["metadata"]
-    data = load_tactile(dataset, cfg.task, cfg.max_samples, joints=cfg.model.joint_inputs > 0)
-    num_taxels = data.readings.shape[1]
-    if cfg.model.num_taxels != num_taxels:
-        cfg = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, num_taxels=num_taxels))
-    train_set, test_set = split(data, cfg.train_fraction, cfg.seed)
+    data = load_data(cfg, dataset, cfg.max_samples)
+    num_taxels = data.frames.readings.shape[1]
+    cfg = with_taxels(cfg, num_taxels)
+    train_set, test_set = split_data(cfg, data)
+    extra = [load_extra(path, num_taxels) for path in cfg.extra_train]
+    if extra:
+        train_set = join_episodes([train_set, *extra])
+        log(f"training episodes: {len(train_set.episodes())} ({sum(len(e.episodes()) for e in extra)} from "
+            f"{', '.join(cfg.extra_train)}, {sum(len(e) for e in extra)} frames)")
+    starts = window_starts(train_set, cfg.window)
     objective = Objective(cfg.task, cfg.match_balls)
     rest = None
-    if cfg.model.name == "gcn":
+    if cfg.model.name == "gcn" and not cfg.temporal:
         rest = rest_positions_cm if rest_positions_cm is not None else skin_rest_positions_cm(meta["skin"])
 
     torch.manual_seed(cfg.seed)
-    model = make_model(cfg.model, rest)
+    model = build_perception(cfg.model, cfg.temporal, cfg.memory, rest)
     if cfg.init_output_bias:
-        last = [m for m in model.modules() if isinstance(m, torch.nn.Linear)][-1]
-        with torch.no_grad():
-            last.bias.copy_(train_set.targets.mean(0))
+        init_output_bias(model, train_set.frames.targets.mean(0))
     optim = make_optimizer(model, cfg.lr, cfg.weight_decay)
     history: list[dict] = []
     start_epoch = 0
     if resume and ckpt_path.exists():
         payload = load_checkpoint(ckpt_path)
-        if payload["config"] != to_dict(cfg):
-            diff = [k for k in payload["config"] if payload["config"][k] != to_dict(cfg).get(k)]
+        # more epochs continue the run where the learning rate does not depend on their number
+        free = ("epochs",) if cfg.lr_schedule in ("exp", "constant") else ()
+        diff = [k for k in payload["config"] if k not in free and payload["config"][k] != to_dict(cfg).get(k)]
+        if diff:
             raise CheckpointError(f"{ckpt_path}: was trained with another config (differs in {diff})")
         model.load_state_dict(payload["model"])
         optim.load_state_dict(payload["optimizer"])
@@ -117,28 +190,30 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
         log(f"resumed from {ckpt_path} after epoch {payload['epoch']}")
 
     writer = SummaryWriter(run_dir)
-    steps_per_epoch = -(-len(train_set) // cfg.batch_size)
-    total_steps = cfg.epochs * steps_per_epoch
+    steps_per_epoch = max(1, math.ceil(len(train_set) / (cfg.batch_size * cfg.window)))
+    # by frame, every frame once (the last batch partial); by episode, full batches of windows
+    draws = len(starts) if cfg.split == "frame" else steps_per_epoch * cfg.batch_size
+    if cfg.window > 1:
+        log(f"{len(train_set)} training frames in {len(train_set.episodes())} episodes, {len(starts)} window "
+            f"starts; {steps_per_epoch} steps of {cfg.batch_size} windows x {cfg.window} frames per epoch")
     for epoch in range(start_epoch, cfg.epochs):
         model.train()
-        start = time.perf_counter()
-        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
-        total, batches = 0.0, 0
-        for i in range(0, len(order), cfg.batch_size):
-            idx = order[i:i + cfg.batch_size]
-            loss = objective.loss(model(*train_set.batch(idx)), train_set.targets[idx])
-            backward_checked(optim, loss, f"at epoch {epoch}, batch {batches} of {run_dir}")
-            if cfg.lr_schedule != "constant" or cfg.warmup_epochs > 0:
-                lr = cfg.lr * lr_factor(cfg, epoch * steps_per_epoch + batches, total_steps, steps_per_epoch)
-                for group in optim.param_groups:
-                    group["lr"] = lr
+        begin = time.perf_counter()
+        chosen = epoch_order(starts, draws, torch.Generator().manual_seed(cfg.seed * 1000 + epoch))
+        total = 0.0
+        for b in range(steps_per_epoch):
+            batch = chosen[b * cfg.batch_size:(b + 1) * cfg.batch_size]
+            loss = window_loss(model, train_set, batch, cfg.window, cfg.burn_in, objective)
+            backward_checked(optim, loss, f"at epoch {epoch}, batch {b} of {run_dir}")
+            lr = cfg.lr * lr_factor(cfg, epoch * steps_per_epoch + b, cfg.epochs * steps_per_epoch, steps_per_epoch)
+            for group in optim.param_groups:
+                group["lr"] = lr
             optim.step()
             total += loss.item()
-            batches += 1
-        seconds = time.perf_counter() - start
-        train_m = objective.metrics(predict(model, train_set), train_set.targets)
-        test_m = objective.metrics(predict(model, test_set), test_set.targets)
-        row = {"epoch": epoch, "loss": total / batches, "seconds": seconds, "lr": optim.param_groups[0]["lr"],
+        seconds = time.perf_counter() - begin
+        train_m = model_metrics(model, cfg, train_set) if cfg.split == "frame" else {}
+        test_m = model_metrics(model, cfg, test_set)
+        row = {"epoch": epoch, "loss": total / steps_per_epoch, "seconds": seconds, "lr": optim.param_groups[0]["lr"],
                **{f"train/{k}": v for k, v in train_m.items()}, **{f"test/{k}": v for k, v in test_m.items()}}
         history.append(row)
         for key, value in row.items():
@@ -146,11 +221,11 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
                 writer.add_scalar(key if "/" in key else f"train/{key}", value, epoch)
         log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
         save_checkpoint(ckpt_path, {
-            "format_version": CHECKPOINT_VERSION, "config": to_dict(cfg), "epoch": epoch,
-            "model": model.state_dict(), "optimizer": optim.state_dict(), "history": history,
+            "config": to_dict(cfg), "epoch": epoch, "model": model.state_dict(), "optimizer": optim.state_dict(),
+            "history": history, "rest_positions_cm": rest,
             "dataset": {"path": str(dataset), "num_taxels": num_taxels, "kind": meta.get("kind"),
-                        "object": meta.get("object")},
-            "rest_positions_cm": rest,
+                        "object": meta.get("object"), "frames": len(data), "split": cfg.split,
+                        "extra_train_frames": sum(len(e) for e in extra)},
         })
         atomic_write_text(run_dir / "history.json", json.dumps(history, indent=1))
     writer.close()

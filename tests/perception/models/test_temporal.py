@@ -70,9 +70,9 @@ def test_output_does_not_depend_on_the_taxel_order():
 def test_the_state_carries_balls_through_frames_without_contact():
     """On episodes where untouched balls stand still, the filter over the MLP's features places
     untouched balls far better than the same MLP reading one frame (same steps, same data)."""
+    from tacgnn.perception.evaluation import ball_errors
     from tacgnn.perception.models.build import build_model
-    from tacgnn.perception.sequence_evaluation import matched_ball_errors
-    from tacgnn.perception.sequence_training import init_output_bias
+    from tacgnn.perception.training import init_output_bias
 
     data = to_sequence_data(episodes(40, 24, seed=2, blind=0.4))
     train, test = split_by_episode(data, 0.8, seed=0)
@@ -104,7 +104,7 @@ def test_the_state_carries_balls_through_frames_without_contact():
                 pred, _ = model(t.readings[rows], t.positions[rows], t.joints[rows], test.actions[rows])
             else:
                 pred = model(t.readings[rows].flatten(0, 1), t.positions[rows].flatten(0, 1))
-        se, touch, _ = matched_ball_errors(pred.reshape(-1, 6), test.subset(rows.reshape(-1)))
+        se, touch, _ = ball_errors(pred.reshape(-1, 6), test.subset(rows.reshape(-1)).frames)
         assert 0.2 < float((~touch).float().mean()) < 0.8  # both kinds of balls are there
         untouched[temporal] = float(se[~touch].mean().sqrt())
     assert untouched[True] < 0.8 * untouched[False], untouched

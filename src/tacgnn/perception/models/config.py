@@ -23,6 +23,8 @@ GCN_NODE_POSITIONS = ("current", "rest")
 #: layer: concatenated ("all", L x C wide), concatenated and mapped to C by a linear layer
 #: without bias ("jk", jumping knowledge; the head's input stays C wide) or summed ("sum").
 POOLS = ("last", "all", "jk", "sum")
+#: The paper's TacGNN over these defaults: ``PerceptionModelConfig(**PAPER_TACGNN)``.
+PAPER_TACGNN = {"use_force": False, "force_feature": "raw", "pool": "last"}
 
 _SEQUENCES = ("k", "downsample_layers", "mlp_hidden", "gcn_channels")
 #: Upper bounds: far above any useful setting, low enough that a typo (channels=32000000)
@@ -46,12 +48,13 @@ def _is_number(v) -> bool:
 class PerceptionModelConfig:
     """Hyper-parameters of all perception models (each model reads its own fields).
 
-    The defaults are the paper's TacGNN, and must stay so: checkpoints that
-    store a model config from before a field existed (PPO runs with online
-    perception) are rebuilt with that field's default. Offline training
-    (:class:`tacgnn.perception.train_config.PerceptionTrainConfig`, ``tacgnn
-    train-perception``) starts from better TacGNN settings instead
-    (``TRAIN_MODEL_DEFAULTS``: log force input, jumping-knowledge pool).
+    The one place of the models' defaults: offline training, the temporal model's frame
+    encoder and the perception in the PPO loop all start from them. They differ from the
+    paper's TacGNN in two settings that train better (experiments/perception_accuracy/NOTES.md):
+    the force is a log node feature and the readout pools every layer (``use_force=true
+    force_feature=log pool=jk``); the paper's is ``use_force=false force_feature=raw pool=last``
+    (``PAPER_TACGNN``). A checkpoint stores every field, so these defaults never decide how a
+    stored model is rebuilt.
 
     Lists (e.g. from YAML) become tuples; an invalid value raises
     :class:`tacgnn.config.ConfigError` naming the field.
@@ -70,15 +73,15 @@ class PerceptionModelConfig:
     """Farthest point sampling keeps ceil(ratio * n) nodes."""
     downsample_layers: tuple[int, ...] = (0, 1, 2)
     """Sample after these layers (0-based)."""
-    use_force: bool = False
-    """Node input [x, y, z, force] instead of [x, y, z]."""
+    use_force: bool = True
+    """Node input [x, y, z, force] instead of [x, y, z] (the paper: false)."""
     self_loop: bool = False
     """Let a node be its own neighbour."""
     fps_start: str = "centroid"
     """First sample: see graph_ops.FPS_STARTS; 'centroid' does not depend on the taxel order."""
     exact_graph: bool = False
     """Torch graph building with exact distances (the reference; slower)."""
-    force_feature: str = "raw"
+    force_feature: str = "log"
     """With use_force: the node's force input, see FORCE_FEATURES."""
     pos_scale: float = 1.0
     """Node positions (cm) are multiplied by this before the network."""
@@ -90,8 +93,8 @@ class PerceptionModelConfig:
     """Width of the head's hidden layers; 0 = width of all pooled features (C, or L*C with pool all/jk)."""
     residual: bool = False
     """h^l = conv(h^{l-1}) + h^{l-1} where the widths match."""
-    pool: str = "last"
-    """Readout input: see POOLS."""
+    pool: str = "jk"
+    """Readout input: see POOLS (the paper: 'last')."""
     joint_inputs: int = 0
     """TacGNN and MLP: hand joint angles read beside the skin (0 = skin only, the paper)."""
     reading_feature: str = "raw"

@@ -23,16 +23,34 @@ from tacgnn.perception.models.config import PerceptionModelConfig
 FRAME_MODELS = ("tacgnn", "mlp", "cnn")
 
 
-def _default_frame() -> PerceptionModelConfig:
-    # offline training's TacGNN settings (tacgnn.perception.train_config.TRAIN_MODEL_DEFAULTS)
-    return PerceptionModelConfig(use_force=True, force_feature="log", pool="jk")
+def _check_width(owner: str, key: str, value: object, least: int) -> None:
+    check(isinstance(value, int) and not isinstance(value, bool) and value >= least, f"{owner}.{key}",
+          f"must be an int >= {least}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class MemoryConfig:
+    """The recurrent part of a temporal model, as training configs hold it beside the frame model."""
+
+    feature: int = 64
+    """Width of the per-frame feature the encoder gives the GRU."""
+    hidden: int = 128
+    """Width of the GRU state."""
+    joints: int = 16
+    """Joint angles (rad) read every frame; 0 = none."""
+    actions: int = 16
+    """Previous actions (the step's command, [-1, 1]) read every frame; 0 = none."""
+
+    def __post_init__(self) -> None:
+        for key, least in (("feature", 1), ("hidden", 1), ("joints", 0), ("actions", 0)):
+            _check_width("memory", key, getattr(self, key), least)
 
 
 @dataclass(frozen=True)
 class TemporalModelConfig:
     """A per-frame model (its ``out_dim`` replaced by `feature`) under a GRU of width `hidden`."""
 
-    frame: PerceptionModelConfig = field(default_factory=_default_frame)
+    frame: PerceptionModelConfig = field(default_factory=PerceptionModelConfig)
     """The per-frame encoder: one of FRAME_MODELS, without joint inputs (the GRU reads the joints)."""
     feature: int = 64
     """Width of the per-frame feature the encoder gives the GRU."""
@@ -51,14 +69,14 @@ class TemporalModelConfig:
         check(self.frame.joint_inputs == 0, "model.frame.joint_inputs",
               "must be 0: the temporal model feeds the joint angles to its GRU (model.joints)")
         check(self.out_dim == 6, "model.out_dim", f"a temporal model tracks two balls (6 values), got {self.out_dim}")
-        for key in ("feature", "hidden"):
-            v = getattr(self, key)
-            check(isinstance(v, int) and not isinstance(v, bool) and v >= 1, f"model.{key}",
-                  f"must be a positive int, got {v!r}")
-        for key in ("joints", "actions"):
-            v = getattr(self, key)
-            check(isinstance(v, int) and not isinstance(v, bool) and v >= 0, f"model.{key}",
-                  f"must be an int >= 0, got {v!r}")
+        for key, least in (("feature", 1), ("hidden", 1), ("joints", 0), ("actions", 0)):
+            _check_width("model", key, getattr(self, key), least)
+
+    @classmethod
+    def of(cls, frame: PerceptionModelConfig, memory: MemoryConfig) -> TemporalModelConfig:
+        """The temporal model of a frame model and a memory (the training configs' two parts)."""
+        return cls(frame=frame, feature=memory.feature, hidden=memory.hidden, joints=memory.joints,
+                   actions=memory.actions)
 
 
 class TemporalPerception(nn.Module):
@@ -216,4 +234,4 @@ def align_balls(pred: Tensor, previous: Tensor) -> Tensor:
     return torch.where(swap[:, None], swapped, pred)
 
 
-__all__ = ["FRAME_MODELS", "TemporalModelConfig", "TemporalPerception", "align_balls"]
+__all__ = ["FRAME_MODELS", "MemoryConfig", "TemporalModelConfig", "TemporalPerception", "align_balls"]
