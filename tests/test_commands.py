@@ -50,7 +50,13 @@ def test_readme_commands_run_from_a_plain_shell(tmp_path):
     assert (tmp_path / "ep.mp4").stat().st_size > 0 and (tmp_path / "skin.png").stat().st_size > 0
     demo = _plain_shell("demo", "--episodes", "2", "--envs", "2", "--video-seconds", "1", cwd=tmp_path)
     assert demo.returncode == 0, demo.stderr
-    assert "success rate" in demo.stdout and (tmp_path / "outputs" / "demo.mp4").stat().st_size > 0
+    assert "success rate" in demo.stdout
+    import imageio.v3 as iio
+
+    frames = iio.imread(tmp_path / "outputs" / "demo.mp4")
+    assert frames.shape == (25, 720, 1280, 3)  # 1 s at 25 frames/s
+    title = frames[0, :45, :900].astype(float)
+    assert (title > 200).mean() > 0.02 and title.std() > 30  # white text on the dark band
 
 
 def test_demo_runs_the_task_set_and_refuses_a_typo(capsys):
