@@ -62,14 +62,19 @@ def busy_processes(seconds: float = 2.0, min_cpu: float = 10.0) -> list[dict]:
 
 
 def make_calibration(folder: Path, policy: str) -> Path:
-    """The calibration `calibrate-skin` finds for the simulated hand at rest (baseline 10, no noise)."""
+    """The calibration `calibrate-skin` finds for the simulated hand's skin at rest (balls away)."""
     from tacgnn.learning.policy import load_policy
-    from tacgnn.real.sim_hand import SimHandConfig
+    from tacgnn.real.ros_config import RosConfig
+    from tacgnn.real.sim_hand import SimHand, SimHandConfig
     from tacgnn.real.skin import calibrate
 
-    layout = load_policy(policy)[1].skin
-    rest = np.full((2, layout.num_taxels), SimHandConfig().skin_baseline, np.float32)
-    return calibrate(rest, layout).save(folder / "calibration.npz")
+    env_config = load_policy(policy)[1]
+    hand = SimHand(env_config, SimHandConfig(), RosConfig())
+    for b, x in zip(hand.env.ball_qpos_adr, (0.0, 0.3)):
+        hand.env.sim.qpos[0, b:b + 3] = (x, 0.0, -1.0)
+    hand.env.sim.forward()
+    rest = np.stack([hand.raw_skin(stepped=False) for _ in range(50)])
+    return calibrate(rest, env_config.skin).save(folder / "calibration.npz")
 
 
 def reference(policy: str, calibration: Path, task: str, episodes: int, seed: int) -> dict:
@@ -89,22 +94,22 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
     env = hand.env
     env.reset(seed=seed)
     low, high = env.joint_low, env.joint_high
-    readings = env.tactile_readings()[0]
+    stepped = False  # the skin of the state the env just stepped to, or of a fresh start
     controller.reset(env.joint_pos[0].copy())
     wins, ticks, done, started = 0, [], 0, time.monotonic()
     while done < episodes:
         began = time.perf_counter()
-        skin = processor.process_raw(hand.raw_skin(readings))
+        skin = processor.process_raw(hand.raw_skin(stepped))
         target = controller.step(env.joint_pos[0].copy(), env.joint_vel[0].copy(), skin)
         ticks.append(time.perf_counter() - began)
         _, _, terminated, truncated, info = env.step(target_to_action(target, low, high)[None])
         if terminated[0] or truncated[0]:
             wins += bool(info["success"][0])
             done += 1
-            readings = env.tactile_readings()[0]
+            stepped = False
             controller.reset(env.joint_pos[0].copy())
         else:
-            readings = env.skin_to_host(info["tactile"][:1])[0]
+            stepped = True
     ms = 1e3 * np.asarray(ticks[10:])  # the first ticks pay for lazy initialisation
     return {"episodes": episodes, "success_rate": wins / episodes, "seconds": round(time.monotonic() - started, 1),
             "tick_compute_ms": {"p50": round(float(np.percentile(ms, 50)), 3),

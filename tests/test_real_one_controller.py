@@ -17,6 +17,7 @@ from tacgnn.envs.baoding import BaodingEnv, ordered_balls
 from tacgnn.envs.observation import BALL_COLUMNS, action_to_target, assemble, target_to_action, track_ball_identities
 from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig
+from tacgnn.sim.skin_signal import SkinSignalConfig
 
 torch.set_num_threads(1)
 
@@ -57,7 +58,10 @@ def test_env_and_controller_give_the_same_observations_and_actions(policy_file, 
     controller.env_config = replace(controller.env_config, ball_order=ball_order)
     cfg = replace(controller.env_config, num_envs=1, seed=5, max_episode_steps=120,
                   # all substeps in one call (the skin-instant hook below); the physics is the same
-                  reward=replace(controller.env_config.reward, squeeze_peak=False))
+                  reward=replace(controller.env_config.reward, squeeze_peak=False),
+                  # the controller is fed the contact model's frames: the skin's signal chain is the
+                  # calibration's business (tests/test_skin_signal.py), not this test's
+                  skin_signal=SkinSignalConfig(preset="ideal"))
     env = BaodingEnv(cfg, perception=FlippingPerception(load_perception(policy_file)))  # its own memory, if any
     controller.perception = FlippingPerception(controller.perception)
     frames = []  # every skin frame the env computes, and the joint angles at its instant

@@ -40,10 +40,12 @@ from tacgnn.config import ConfigError, check, check_seed
 from tacgnn.envs import observation
 from tacgnn.envs.base import HandEnvBase
 from tacgnn.envs.observation import track_ball_identities  # noqa: F401  (its home before observation.py)
+from tacgnn.envs.randomization import HandIO, RandomizationConfig, draw_ranges, randomize_physics
 from tacgnn.hand.allegro import FINGER_RANGES, NUM_JOINTS, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.backend import SkinArray, skin_positions, skin_readings
-from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame
+from tacgnn.sim.scene import SimConfig, add_sphere, hand_scene, palm_frame, sphere_inertia
+from tacgnn.sim.skin_signal import SkinSignal, SkinSignalConfig
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +93,12 @@ class RewardConfig:
     target is a 99th percentile of 10 N) while the ordinary grip pays only `squeeze`; 0: off."""
     squeeze_tail_force: float = 8.0
     """Contact force (N) where `squeeze_tail` starts."""
+    action_rate: float = -0.001
+    """Times |a_t - a_(t-1)|^2 (not in the paper): a real motor does not follow targets flipped
+    end to end every 20 ms, and a policy that does that leans on the simulator's ideal drive."""
+    effort: float = -0.002
+    """Times sum over joints of (torque / nominal torque limit)^2 (not in the paper): a hand that
+    holds its motors at the limit has no margin for a weaker motor or a stiffer joint."""
     alive: float = 0.0
     """Per step that ends with both balls in the hand (not in the paper; for the continuous
     task, where staying in the hand is worth more than one fast half turn)."""
@@ -100,31 +108,14 @@ class RewardConfig:
 
     def __post_init__(self) -> None:
         check(self.alive >= 0, "reward.alive", f"must be >= 0, got {self.alive}")
+        for name in ("action_rate", "effort"):
+            check(-1e3 <= getattr(self, name) <= 0, f"reward.{name}",
+                  f"is a cost: must be in [-1000, 0], got {getattr(self, name)}")
         check(self.squeeze_tail <= 0, "reward.squeeze_tail", f"is a penalty: must be <= 0, got {self.squeeze_tail}")
         check(self.squeeze_tail_force >= self.squeeze_free_force, "reward.squeeze_tail_force",
               f"must be >= reward.squeeze_free_force ({self.squeeze_free_force} N), got {self.squeeze_tail_force}")
         check(self.rotation_cap_deg >= 0, "reward.rotation_cap_deg",
               f"must be >= 0 (0: no cap), got {self.rotation_cap_deg}")
-
-
-@dataclass(frozen=True)
-class RandomizationConfig:
-    """Per-env physics drawn at every reset (the paper's domain randomisation)."""
-
-    enabled: bool = False
-    ball_mass: tuple[float, float] = (0.1, 0.2)
-    friction_scale: tuple[float, float] = (0.8, 1.2)
-    gravity: tuple[float, float] = (7.0, 12.0)
-    stiffness_scale: tuple[float, float] = (0.8, 1.2)
-    damping_scale: tuple[float, float] = (0.8, 1.2)
-    torque_limit_scale: tuple[float, float] = (0.8, 1.2)
-    """Per-joint factor on `hand.torque_limit`: motors of one model differ."""
-
-    def __post_init__(self) -> None:
-        for name in ("ball_mass", "friction_scale", "gravity", "stiffness_scale", "damping_scale",
-                     "torque_limit_scale"):
-            lo, hi = getattr(self, name)
-            check(0 < lo <= hi, f"randomization.{name}", f"needs 0 < low <= high, got ({lo}, {hi})")
 
 
 @dataclass(frozen=True)
@@ -137,6 +128,8 @@ class BaodingConfig:
     obs_mode: ObsMode = "groundtruth"
     hand: HandConfig = field(default_factory=lambda: HandConfig(joint_ranges=BAODING_RANGES))
     skin: SkinLayout = field(default_factory=default_skin)
+    skin_signal: SkinSignalConfig = field(default_factory=SkinSignalConfig)
+    """What the skin reads like: 'real' (a resistive array and its calibration) or 'ideal'."""
     sim: SimConfig = field(default_factory=SimConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
@@ -237,6 +230,8 @@ class BaodingConfig:
         check(not self.ball_velocity or self.obs_mode in ("groundtruth", "perceived", "tactile"), "ball_velocity",
               f"shows the velocities of the balls the observation shows: 'groundtruth' or 'perceived' "
               f"('tactile': in its ground-truth view), not '{self.obs_mode}'")
+        if self.randomization.enabled:
+            self.randomization.check_latencies(self.sim.timestep)
         check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
               f"obs_mode '{self.obs_mode}' needs tactile: true")
 
@@ -302,6 +297,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.true_balls = np.zeros((n, 6))  # true positions at the last step (ball_velocity)
         self.true_velocity = np.zeros((n, 6))  # their change over the last step / control_dt
         self._seed(cfg.seed)
+        self.hand_io = HandIO(cfg.randomization, n, self.substeps, cfg.sim.timestep, cfg.control_dt)
+        self.skin_signal = SkinSignal(cfg.skin_signal, cfg.skin, n, cfg.control_dt)
+        self._nominal_torque_limit = np.asarray(cfg.hand.joint_torque_limit())  # the effort cost's unit
+        late = self.hand_io.skin_frames if self._obs_uses_skin and cfg.randomization.enabled else 0
+        self._skin_history = None if late == 0 else (  # newest first: what a late frame shows
+            np.zeros((n, late + 1, self.tactile.num_taxels), np.float32),
+            np.zeros((n, late + 1, self.tactile.num_taxels, 3), np.float32))
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -349,7 +351,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if mode == "perceived":
             if self.perception is None:
                 raise RuntimeError("obs_mode 'perceived' needs a perception model: BaodingEnv(perception=...)")
-            joints = self.sim.qpos[ids][:, self.joint_qpos_adr]  # for a model that reads the hand's pose too
+            joints = self.hand_io.readings(ids, self.joint_pos[ids], self.joint_vel[ids])[0]  # for models that read it
             previous = self.perceived_balls[ids] if self.config.track_balls else None
             assert tactile is not None and taxel_pos is not None  # the config turns the skin on for 'perceived'
             pred = observation.perceive_balls(self.perception, tactile, taxel_pos, joints, previous)
@@ -367,7 +369,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return ordered_balls(balls, self.config, velocity if self.config.ball_velocity else None)
 
     def _observe(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None) -> Any:
-        q, qd, lo, hi = self.joint_pos[ids], self.joint_vel[ids], self.joint_low, self.joint_high
+        q, qd = self.hand_io.readings(ids, self.joint_pos[ids], self.joint_vel[ids])  # as the encoders read them
+        lo, hi = self.joint_low, self.joint_high
         if self.config.obs_mode == "tactile":
             proprio = observation.proprioception(q, qd, lo, hi)
             return {"proprio": np.concatenate([proprio, self.last_action[ids]], 1).astype(np.float32),
@@ -382,6 +385,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
                                     self.joint_high)
 
+    def raw_skin(self) -> np.ndarray:
+        """(N, T) what the skin's driver reports now, before any calibration: the real skin's raw
+        values (advancing it one frame), or the ideal skin's forces. For the simulated hand behind
+        ROS, whose consumer calibrates them as it would a real hand's."""
+        forces = self.tactile_readings()
+        return forces if self.config.skin_signal.is_ideal else self.skin_signal.raw(forces, slice(None), self._rng)
+
     def _skin(self, ids: EnvIds) -> tuple[SkinArray | None, SkinArray | None]:
         """Readings of envs `ids`, and taxel positions if the observation needs them.
 
@@ -391,6 +401,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if not self.config.tactile:
             return None, None
         readings = skin_readings(self.tactile, self.sim, ids, self._rng)  # on Warp: from the device arrays
+        if not self.config.skin_signal.is_ideal:  # what a real skin and its calibration make of it
+            readings = self.skin_signal(self.skin_to_host(readings), ids, self._rng)
         if not self._obs_uses_skin:
             return readings, None
         return readings, skin_positions(self.tactile, self.sim, ids)
@@ -445,7 +457,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                   if (values := batch.expanded(name)) is not None}
         return {"sim_state": batch.state.copy(), "model_fields": fields,
                 "buffers": {name: getattr(self, name).copy() for name in self.EPISODE_STATE},
-                "rng": self.rng_state()}
+                "rng": self.rng_state(), "hand_io": self.hand_io.state_dict(),
+                "skin_signal": self.skin_signal.state_dict(),
+                "skin_history": None if self._skin_history is None else [a.copy() for a in self._skin_history]}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what `state_dict` saved, into an env built from the same config.
@@ -472,6 +486,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         for name, values in state["buffers"].items():
             getattr(self, name)[...] = values
         self.set_rng_state(state["rng"])
+        self.hand_io.load_state_dict(state["hand_io"])
+        self.skin_signal.load_state_dict(state["skin_signal"])
+        if self._skin_history is not None:
+            for mine, saved in zip(self._skin_history, state["skin_history"]):
+                mine[...] = saved
 
     # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -479,7 +498,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             self._seed(seed)
         ids = np.arange(self.num_envs)
         self._reset_envs(ids)
-        tactile, taxel_pos = self._skin(ids)
+        tactile, taxel_pos = self._late_skin(ids, *self._skin(ids), fresh=True)
         return self._observe(ids, tactile, taxel_pos), {}
 
     def _reset_envs(self, ids: np.ndarray) -> None:
@@ -488,9 +507,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             return
         sim.reset(ids)
         k = NUM_JOINTS + 2 * len(BALLS)  # joint noise, then the balls' x, y shifts
-        u = self._env_draws(ids, k + (RANDOMIZED_DRAWS if cfg.randomization.enabled else 0))
-        if cfg.randomization.enabled:
-            randomize(self, ids, u[:, k:])
+        u = self._env_draws(ids, k)
         q0 = self.initial_ctrl + cfg.joint_noise * (2 * u[:, :NUM_JOINTS] - 1)
         q0 = np.clip(q0, *self.target_ranges.T)
         qpos = sim.qpos[ids]
@@ -498,6 +515,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         shift = cfg.spawn_noise * (2 * u[:, NUM_JOINTS:k] - 1).reshape(-1, len(BALLS), 2)
         for row, env_id in enumerate(ids):
             qpos[row] = self._clear_spawn(qpos[row], shift[row], env_id)
+        # the hand after the start: the same seed starts the same episode on every hand
+        drawn = {}
+        if cfg.randomization.enabled:
+            drawn = draw_ranges(cfg.randomization, self._env_draws(ids, cfg.randomization.draws_per_reset()))
+            randomize_physics(self, ids, drawn)
         sim.qpos[ids] = qpos
         sim.qvel[ids] = 0.0
         sim.ctrl[ids] = q0
@@ -511,6 +533,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.perceived_balls[ids] = self._spawn.ravel()  # where the balls are put
         self.true_balls[ids] = self.ball_positions()[ids].reshape(-1, 6)
         self.true_velocity[ids] = 0.0
+        self.hand_io.reset(ids, drawn, q0, self.joint_pos[ids], self.joint_vel[ids])
+        self.skin_signal.reset(ids, [self._env_rngs[i] for i in ids])
 
     def _place_balls(self, qpos: np.ndarray, shift: np.ndarray) -> np.ndarray:
         for b, adr in enumerate(self.ball_qpos_adr):
@@ -543,26 +567,24 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
     # --- step --------------------------------------------------------------------------
     def step(self, actions: np.ndarray):
-        cfg, sim = self.config, self.sim
+        cfg = self.config
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, NUM_JOINTS):
             raise ValueError(f"actions must have shape ({self.num_envs}, {NUM_JOINTS}), got {actions.shape}")
         if not np.isfinite(actions).all():
             raise ValueError(f"non-finite actions in envs {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
         actions = np.clip(actions, -1.0, 1.0)
-        sim.ctrl[:] = self.action_to_ctrl(actions)
+        self.hand_io.push(self.action_to_ctrl(self.hand_io.command(actions, self._rng)))
         self._apply_disturbances()
-        if cfg.reward.squeeze_peak:
-            diverged, ball_forces = self._step_keeping_peak_forces()
-        else:
-            diverged = sim.step(self.substeps)
-            ball_forces = self.ball_contact_forces()
+        diverged, ball_forces = self._step_physics()
         self.episode_steps += 1
+        action_change = actions - self.last_action
         self.last_action[:] = actions
 
         all_ids = slice(None)  # a slice: rows as views, not copies
         if diverged.any():  # keep NaN out of everything computed below; these envs reset
             self._scrub(diverged)
+        self.hand_io.observe(self.joint_pos, self.joint_vel, self._rng)
         tactile, taxel_pos = self._skin(all_ids)
         balls = self.ball_positions()
         flat = balls.reshape(self.num_envs, 6)
@@ -573,7 +595,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         reached = self.angle >= np.deg2rad(cfg.success_angle_deg) - 1e-9  # float round-off
         success = self._success(reached, fall)
         timeout = (self.episode_steps >= self.episode_limit) & ~success & ~fall
-        terms = self._reward_terms(d_angle, actions, success, fall, timeout, ball_forces)
+        terms = self._reward_terms(d_angle, actions, action_change, success, fall, timeout, ball_forces)
         reward = sum(terms.values())
         terminated = success | fall | diverged
         truncated = timeout & ~terminated
@@ -592,13 +614,14 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             info["joint_pos"] = self.sim.qpos[:, self.joint_qpos_adr]  # rad, beside each frame of the skin
         if taxel_pos is not None:
             info["taxel_pos"] = taxel_pos
-        obs = self._observe(all_ids, tactile, taxel_pos)
+        obs = self._observe(all_ids, *self._late_skin(all_ids, tactile, taxel_pos))
         done = np.flatnonzero(terminated | truncated)
         if len(done):
             info["final_obs"], info["_final_obs"] = obs, terminated | truncated
             obs = _copy_obs(obs)
             self._reset_envs(done)
-            new_tactile, new_pos = self._skin(done) if self._obs_uses_skin else (None, None)
+            new_tactile, new_pos = self._late_skin(done, *self._skin(done), fresh=True) \
+                if self._obs_uses_skin else (None, None)
             _assign_obs(obs, done, self._observe(done, new_tactile, new_pos))
         return obs, reward.astype(np.float32), terminated, truncated, info
 
@@ -665,21 +688,56 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         """(N, 2 x BALL_CONTACTS) normal forces (N) of the balls' strongest contacts, 0 where none."""
         return self.sim.sensordata[:, self._ball_force_cols]
 
-    def _step_keeping_peak_forces(self) -> tuple[np.ndarray, np.ndarray]:
-        """Step the control step's substeps one at a time; return the diverged mask and each ball
-        contact slot's largest normal force (N) over the substeps' states."""
-        diverged = self.sim.step(1)
-        peak = self.ball_contact_forces().copy()
-        for _ in range(self.substeps - 1):
-            diverged |= self.sim.step(1)
-            np.maximum(peak, self.ball_contact_forces(), out=peak)
-        return diverged, peak
+    def _step_physics(self) -> tuple[np.ndarray, np.ndarray]:
+        """Step one control step; return the diverged mask and the balls' contact forces (N) that
+        the squeeze cost reads: at the step's end, or with `reward.squeeze_peak` each contact
+        slot's largest over the substeps.
 
-    def _reward_terms(self, d_angle, actions, success, fall, timeout, ball_forces) -> dict[str, np.ndarray]:
+        The targets of `hand_io` reach the motors whole control steps at a time, unless an action
+        latency makes them arrive between physics steps: then (and for the peak forces) the physics
+        is stepped one substep per call (the same trajectory, a little slower).
+        """
+        sim, io, peak_wanted = self.sim, self.hand_io, self.config.reward.squeeze_peak
+        if not io.has_latency and not peak_wanted:
+            sim.ctrl[:] = io.target_at(0)
+            return sim.step(self.substeps), self.ball_contact_forces()
+        diverged = np.zeros(self.num_envs, bool)
+        peak = np.zeros_like(self.ball_contact_forces())  # forces are >= 0
+        forces = peak
+        for substep in range(self.substeps):
+            sim.ctrl[:] = io.target_at(substep)
+            diverged |= sim.step(1)
+            forces = self.ball_contact_forces()
+            np.maximum(peak, forces, out=peak)
+        return diverged, peak if peak_wanted else forces
+
+    def _late_skin(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None,
+                   fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:
+        """The skin frame the policy sees: the newest that has arrived, `hand_io.skin_delay` frames
+        old (skin latency); `fresh` (after a reset) fills the envs' history with this frame."""
+        history = self._skin_history
+        if history is None or tactile is None or taxel_pos is None:
+            return tactile, taxel_pos
+        frames, positions = history
+        tactile, taxel_pos = self.skin_to_host(tactile), self.skin_to_host(taxel_pos)
+        if fresh:
+            frames[ids], positions[ids] = tactile[:, None], taxel_pos[:, None]
+            return tactile, taxel_pos
+        frames[ids, 1:], positions[ids, 1:] = frames[ids, :-1], positions[ids, :-1]
+        frames[ids, 0], positions[ids, 0] = tactile, taxel_pos
+        rows = np.arange(self.num_envs)[ids]
+        late = self.hand_io.skin_delay[rows]
+        return frames[rows, late], positions[rows, late]
+
+    def _reward_terms(self, d_angle, actions, action_change, success, fall, timeout,
+                      ball_forces) -> dict[str, np.ndarray]:
         w = self.config.reward
+        effort = self.sim.actuator_force / self._nominal_torque_limit
         return {
             "rotation": w.rotation * _capped(np.rad2deg(d_angle), w.rotation_cap_deg),
             "action": w.action * np.sum(actions**2, axis=1),
+            "action_rate": w.action_rate * np.sum(action_change**2, axis=1),
+            "effort": w.effort * np.sum(effort**2, axis=1),
             "success": w.success * success,
             "fall": w.fall * fall,
             "timeout": (0.0 if self.config.task == "continuous" else w.timeout) * timeout,  # 10 s is the goal there
@@ -689,11 +747,10 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         }
 
 
-def sphere_inertia(mass, radius: float):
-    """A solid ball's moment of inertia about any axis through its centre (kg m^2), as MuJoCo
-    computes it from the geom, to the last bit (MuJoCo's order of operations: a ball at its
-    compiled mass gets exactly its compiled inertia, so `set_const` leaves `dof_M0` as compiled)."""
-    return 2 * mass * radius * radius / 5
+def training_env_config() -> BaodingConfig:
+    """The env `tacgnn train-policy` starts from: the hand as uncertain as a real one
+    (randomisation on, every range at its default) and the real skin."""
+    return BaodingConfig(randomization=RandomizationConfig(enabled=True))
 
 
 def _capped(degrees: np.ndarray, cap: float) -> np.ndarray:
@@ -760,34 +817,3 @@ def _assign_obs(obs, ids, new) -> None:
             obs[k][ids] = new[k]
     else:
         obs[ids] = new
-
-
-RANDOMIZED_DRAWS = len(BALLS) + 2 + 3 * NUM_JOINTS  # uniforms per reset: ball masses, friction, gravity,
-# then per joint gains, damping and torque limits
-
-
-def randomize(env: BaodingEnv, ids: np.ndarray, u: np.ndarray) -> None:
-    """Set the physics of envs `ids` from uniforms `u` (len(ids), RANDOMIZED_DRAWS) in [0, 1),
-    mapped onto the config's randomisation ranges.
-
-    Friction is scaled on every geom; the balls' geoms have contact priority, so the balls'
-    scaled friction is what their contacts with the hand use.
-    """
-    r, cfg, sim, model = env.config.randomization, env.config, env.sim, env.model
-    nb = len(env.ball_body)
-    columns = np.cumsum([0, nb, 1, 1, NUM_JOINTS, NUM_JOINTS, NUM_JOINTS])
-    ball_mass, friction_scale, gravity, stiffness_scale, damping_scale, torque_scale = (
-        lo + (hi - lo) * u[:, a:b] for (lo, hi), a, b in zip(
-            (r.ball_mass, r.friction_scale, r.gravity, r.stiffness_scale, r.damping_scale,
-             r.torque_limit_scale), columns[:-1], columns[1:]))
-    sim.expand("body_mass")[np.ix_(ids, env.ball_body)] = ball_mass
-    sim.expand("body_inertia")[np.ix_(ids, env.ball_body)] = sphere_inertia(ball_mass, cfg.ball_radius)[..., None]
-    sim.set_const(ids)  # the balls' mass matrix (dof_M0) follows their new masses
-    sim.expand("geom_friction")[ids, :, 0] = model.geom_friction[:, 0] * friction_scale
-    sim.expand("opt.gravity")[ids] = np.concatenate([np.zeros((len(ids), 2)), -gravity], axis=1)
-    kp = np.asarray(cfg.hand.joint_stiffness()) * stiffness_scale
-    sim.expand("actuator_gainprm")[ids, :, 0] = kp
-    sim.expand("actuator_biasprm")[ids, :, 1] = -kp
-    sim.expand("dof_damping")[np.ix_(ids, env.joint_dof_adr)] = np.asarray(cfg.hand.joint_damping()) * damping_scale
-    limit = np.asarray(cfg.hand.joint_torque_limit()) * torque_scale
-    sim.expand("actuator_forcerange")[ids] = np.stack([-limit, limit], axis=-1)

@@ -28,7 +28,7 @@ import torch
 import yaml
 
 from tacgnn.config import ConfigError, from_dict, override, parse_overrides, to_dict, yaml_load
-from tacgnn.envs.baoding import BaodingConfig
+from tacgnn.envs.baoding import BaodingConfig, training_env_config
 from tacgnn.files import FileProblem, atomic_write_text, remove_stale_temp_files
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning import distributed
@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
                              "e.g. model.name=tacgnn pretrained=runs/p/checkpoint.pt")
     args = parser.parse_args(argv)
     dist = distributed.from_environment(args.device)  # a device that is not here: ConfigError, at once
-    env_cfg, ppo_cfg, perception_cfg = BaodingConfig(), PPOConfig(), None
+    env_cfg, ppo_cfg, perception_cfg = training_env_config(), PPOConfig(), None
     if args.resume and args.run_dir is not None and (args.run_dir / "config.yaml").is_file():
         env_cfg, ppo_cfg, perception_cfg = _stored_configs(args.run_dir)  # resume the run as configured
     env_cfg = override(env_cfg, parse_overrides(args.env))

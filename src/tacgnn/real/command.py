@@ -49,14 +49,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--task", choices=["simple", "middle", "hard"], default="simple")
     g.add_argument("--episodes", type=_positive_int, default=64)
     g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--latency-ms", type=float, default=0.0, help="delay of every message the hand sends")
+    g.add_argument("--latency-ms", type=float, default=20.0, help="delay of every message the hand sends "
+                   "(default: %(default)s)")
+    g.add_argument("--skin", choices=["real", "ideal"], default="real",
+                   help="the skin's signal chain: a resistive array sent raw, or the contact forces (default: real)")
     g.add_argument("--drop-tactile", type=float, default=0.0, help="fraction of skin messages lost")
     g.add_argument("--drop-joint-states", type=float, default=0.0, help="fraction of joint states lost")
     g.add_argument("--stray-joint-states", type=float, default=0.0,
                    help="fraction of steps whose joint state is followed by a malformed one (NaN angles)")
     g.add_argument("--joint-noise-deg", type=float, default=0.0, help="std of noise on the joint angles")
-    g.add_argument("--skin-noise", type=float, default=0.0, help="std of noise on the raw skin values")
-    g.add_argument("--dead-taxels", type=float, default=0.0, help="fraction of taxels that always send 0")
     g.add_argument("--rest-steps", type=int, default=0,
                    help="only publish this many frames of the skin at rest (no balls), then stop")
     g.add_argument("--summary", help="write the episodes' outcomes as JSON here")
@@ -129,7 +130,7 @@ def _action(args, cfg) -> int:
                              drop_tactile=args.drop_tactile, drop_joint_states=args.drop_joint_states,
                              stray_joint_states=args.stray_joint_states,
                              joint_noise_rad=float(args.joint_noise_deg) * 3.141592653589793 / 180,
-                             skin_noise=args.skin_noise, dead_taxels=args.dead_taxels, rest_steps=args.rest_steps,
+                             skin=args.skin, rest_steps=args.rest_steps,
                              duration_s=args.duration)
         summary = SimHand(env_config, hand, cfg).run(args.summary)
         if not args.rest_steps:

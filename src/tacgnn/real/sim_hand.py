@@ -17,10 +17,12 @@ answer a state of an earlier episode are ignored. After the last episode it publ
 (the controller stops) and writes a summary (success rate as `tacgnn evaluate` counts
 it, the command lags, the hand's state-to-command response times).
 
-What a real hand adds can be switched on: a transport latency, dropped joint-state or
-skin messages, noise on the joint angles and the skin, dead taxels. The skin is sent as
-raw numbers, ``baseline + readings / gain`` (+ noise), so `tacgnn calibrate-skin` on a
-recording of it at rest recovers the simulator's readings.
+What a real hand adds is on by default: 20 ms of transport latency, and the real skin
+(`tacgnn.sim.skin_signal`: noise floor, offsets, drift, crosstalk, saturation, dead and
+stuck taxels), sent as the raw values its driver would report, so that the controller sees
+only what `tacgnn calibrate-skin` makes of them, as on a real hand. Dropped joint-state or
+skin messages and noise on the joint angles can be switched on. With ``skin: ideal`` the
+skin is sent as ``skin_baseline + readings``.
 """
 
 from __future__ import annotations
@@ -53,8 +55,10 @@ class SimHandConfig:
     task: Literal["simple", "middle", "hard"] = "simple"
     episodes: int = 64
     seed: int = 0
-    latency_s: float = 0.0
+    latency_s: float = 0.02
     """Delay of every message the hand sends (joint states, skin)."""
+    skin: Literal["real", "ideal"] = "real"
+    """The skin's signal chain (`BaodingConfig.skin_signal.preset`), whatever the policy trained on."""
     drop_tactile: float = 0.0
     """Probability that a skin message is lost."""
     drop_joint_states: float = 0.0
@@ -64,13 +68,7 @@ class SimHandConfig:
     joint_noise_rad: float = 0.0
     """Std of Gaussian noise on the published joint angles."""
     skin_baseline: float = 10.0
-    """Raw value of an untouched taxel."""
-    skin_gain: float = 1.0
-    """Newtons per raw unit (raw = baseline + readings / gain)."""
-    skin_noise: float = 0.0
-    """Std of Gaussian noise on the raw skin values."""
-    dead_taxels: float = 0.0
-    """Fraction of taxels that always send 0."""
+    """Raw value of an untouched taxel of the ideal skin."""
     rest_steps: int = 0
     """If > 0: hold the start pose with no balls for this many steps first (skin at rest, for
     `record-skin` and `calibrate-skin`), then stop without running episodes."""
@@ -87,10 +85,12 @@ class SimHandConfig:
         check(self.task in ("simple", "middle", "hard"), "task", f"must be simple, middle or hard, got {self.task!r}")
         check(self.episodes >= 1, "episodes", "must be >= 1")
         check(self.latency_s >= 0, "latency_s", "must be >= 0")
-        for name in ("drop_tactile", "drop_joint_states", "stray_joint_states", "dead_taxels"):
+        check(self.latency_s <= 10, "latency_s", f"must be <= 10 s, got {self.latency_s}")
+        check(self.skin in ("real", "ideal"), "skin", f"must be 'real' or 'ideal', got {self.skin!r}")
+        for name in ("drop_tactile", "drop_joint_states", "stray_joint_states"):
             check(0 <= getattr(self, name) < 1, name, "must be in [0, 1)")
-        check(self.joint_noise_rad >= 0 and self.skin_noise >= 0, "skin_noise", "noise must be >= 0")
-        check(self.skin_gain > 0, "skin_gain", "must be positive")
+        check(0 <= self.joint_noise_rad <= 1, "joint_noise_rad", "must be in [0, 1] rad")
+        check(0 < self.skin_baseline <= 1e6, "skin_baseline", "must be in (0, 1e6]")
         check(self.duration_s >= 0, "duration_s", "must be >= 0 (0: no limit)")
 
 
@@ -136,11 +136,10 @@ class SimHand:
 
     def __init__(self, env_config: BaodingConfig, cfg: SimHandConfig, ros: RosConfig):
         self.cfg, self.ros = cfg, ros
-        env_cfg = replace(env_config, num_envs=1, task=cfg.task, seed=cfg.seed, obs_mode="groundtruth", tactile=True)
+        env_cfg = replace(env_config, num_envs=1, task=cfg.task, seed=cfg.seed, obs_mode="groundtruth", tactile=True,
+                          skin_signal=replace(env_config.skin_signal, preset=cfg.skin))
         self.env = BaodingEnv(env_cfg)
         self.rng = np.random.default_rng(cfg.seed + 1)
-        n = self.env.tactile.num_taxels
-        self.dead = self.rng.random(n) < cfg.dead_taxels
         self.layout = env_cfg.skin
         self.offsets = self.layout.offsets()
         fields = dict(ros.tactile_fields)
@@ -150,13 +149,14 @@ class SimHand:
         self.fields = [fields[p.name] for p in self.layout.patches]
         self.results: list[dict] = []
 
-    def raw_skin(self, readings: np.ndarray) -> np.ndarray:
-        c = self.cfg
-        raw = c.skin_baseline + readings / c.skin_gain
-        if c.skin_noise > 0:
-            raw = raw + c.skin_noise * self.rng.standard_normal(raw.shape)
-        raw = np.where(self.dead, 0.0, raw)
-        return raw.astype(np.float32)
+    def raw_skin(self, stepped: bool) -> np.ndarray:
+        """(T,) the driver's raw values of the skin now: of the frame the env's step just took
+        (`stepped`), or a new frame of the hand as it stands."""
+        env = self.env
+        if self.cfg.skin == "ideal":
+            return (self.cfg.skin_baseline + env.tactile_readings()[0]).astype(np.float32)
+        raw = env.skin_signal.last_raw if stepped else env.raw_skin()
+        return np.asarray(raw[0], np.float32)
 
     def run(self, summary_path: str | Path | None = None) -> dict:
         cfg, ros, env = self.cfg, self.ros, self.env
@@ -186,11 +186,11 @@ class SimHand:
         send = DelayedPublisher(cfg.latency_s)
         low, high = env.joint_low, env.joint_high
 
-        def publish_state(readings: np.ndarray) -> None:
+        def publish_state(stepped: bool) -> None:
             """The skin frame, then the joint state of state k = len(published), both stamped k."""
             stamp = base_ns + len(published) * period_ns
             published.append(time.monotonic())
-            raw = self.raw_skin(readings)
+            raw = self.raw_skin(stepped)
             if self.rng.random() >= cfg.drop_tactile:
                 msg = tactile_cls()
                 if skin_stamped:
@@ -210,7 +210,6 @@ class SimHand:
             for b, x in zip(env.ball_qpos_adr, (0.0, 0.3)):
                 env.sim.qpos[0, b:b + 3] = (x, 0.0, -1.0)
             env.sim.forward()
-        readings = env.tactile_readings()[0]
         episode = 0
         hold = env.last_action[0].copy()
         next_time = time.monotonic()
@@ -234,20 +233,20 @@ class SimHand:
             if pub_episode is not None:
                 send(pub_episode, node.Int32(data=episode))
             tick_wait()
-            publish_state(env.tactile_readings()[0])
+            publish_state(stepped=False)
             return len(published) - 1
 
         try:
             for _ in range(cfg.rest_steps):
                 tick_wait()
-                publish_state(env.tactile_readings()[0])
+                publish_state(stepped=False)
             waited = 0  # the start pose, until a controller commands (at least `warmup` periods)
             while not cfg.rest_steps and node.ok() and (waited < warmup or command["count"] == 0):
                 if waited * period > cfg.wait_for_controller_s:
                     raise TimeoutError(f"no joint command on {ros.joint_cmd_topic} within "
                                        f"{cfg.wait_for_controller_s:.0f} s: is the controller running?")
                 tick_wait()
-                publish_state(readings)
+                publish_state(stepped=False)
                 waited += 1
             first = start_episode() if not cfg.rest_steps and node.ok() else 0
             while node.ok() and not cfg.rest_steps:
@@ -266,7 +265,7 @@ class SimHand:
                 if not (terminated[0] or truncated[0]):
                     if time.monotonic() > end:
                         break
-                    publish_state(env.skin_to_host(info["tactile"][:1])[0])
+                    publish_state(stepped=True)
                     continue
                 self.results.append({"episode": episode, "success": bool(info["success"][0]),
                                      "fall": bool(info["fall"][0]), "timeout": bool(info["timeout"][0]),

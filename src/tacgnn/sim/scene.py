@@ -109,6 +109,13 @@ def add_sphere(spec: mujoco.MjSpec, name: str, radius: float, mass: float, pos, 
                   conaffinity=OBJECT_CONAFFINITY, priority=1, rgba=list(rgba))
 
 
+def sphere_inertia(mass, radius: float):
+    """A solid ball's moment of inertia about any axis through its centre (kg m^2), as MuJoCo
+    computes it from the geom, to the last bit (MuJoCo's order of operations: a ball at its
+    compiled mass gets exactly its compiled inertia, so `set_const` leaves `dof_M0` as compiled)."""
+    return 2 * mass * radius * radius / 5
+
+
 def compile_with_skin(spec: mujoco.MjSpec, skin: SkinLayout, sim: SimConfig) -> mujoco.MjModel:
     """Add the skin's contact sensors and compile."""
     add_skin_sensors(spec, skin, sim.contacts_per_patch)

@@ -1,0 +1,247 @@
+"""What a real resistive skin makes of the contact forces, and its calibration.
+
+`tacgnn.sim.tactile` gives each taxel the normal force pressing it: an ideal skin that reads
+exactly 0 where nothing presses. A real skin never does. Between the contact model and every
+consumer (observation, perception, datasets) `SkinSignal` turns the ideal forces of each frame
+into the raw values a real array reports, then passes them through the same calibration as the
+real hand's path (`calibrated`: subtract the rest baseline, clip at 0, zero what is below the
+taxel's threshold, multiply by the gain, zero dead taxels), so a policy sees in simulation what
+it will see on the hand. Per frame, for each env and taxel i with ideal force f_i:
+
+    c_i = f_i + crosstalk * mean_{j ~ i} f_j                 neighbours j within 1.5 pitches
+    m_i <- m_i + (dt / relaxation_time) (c_i - m_i)          the skin's slow memory of its load
+    y_i = min(g_i ((1 - relaxation) c_i + relaxation m_i), saturation)
+    raw_i = quantise(y_i + offset_i + drift_i + noise_floor * N(0, 1))
+
+so a step load first reads (1 - relaxation) of itself and creeps up (creep), and a released
+taxel keeps reading part of its past load for a while (hysteresis). The per-taxel gain g_i is a
+patch gain times a taxel's own spread; the offset is the taxel's rest value; the drift a random
+walk. Dead taxels read 0; stuck taxels read a constant above their baseline (a phantom press).
+
+Each env is one skin, drawn at reset and calibrated there as the real path does it: rest
+frames (nothing pressing) give the baseline (their mean) and the threshold (`calibration_sigmas`
+times their std, at least `min_threshold`); a patch load gives the patch gain within
+`patch_gain_error`. The drift then carries on from the calibration, which is
+`calibration_age` seconds old. Parameters and their reasons: `SkinSignalConfig`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from tacgnn.config import check
+from tacgnn.hand.skin_layout import SkinLayout
+
+Range = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class SkinSignalConfig:
+    """The skin's signal chain. 'ideal': the contact model's forces as they are (the paper's
+    simulated skin). 'real' (the default): a resistive array and its calibration, with the values
+    below. Forces in N (one raw unit = 1 N before gain); times in s."""
+
+    preset: Literal["ideal", "real"] = "real"
+    noise_floor: float = 0.01
+    """Std (N) of the white noise on every taxel, pressed or not: a few ADC steps, as resistive
+    arrays read at rest."""
+    offset: Range = (0.05, 0.3)
+    """Rest value (N) of each taxel, uniform: the calibration's baseline removes it."""
+    drift_rate: float = 0.002
+    """Random-walk std (N per sqrt(s)) of each taxel's baseline: resistive skins drift with
+    temperature and load history."""
+    calibration_age: Range = (0.0, 60.0)
+    """Seconds between the calibration and the episode's start, uniform: the drift since then is
+    a baseline error the calibration does not know."""
+    gain_spread: float = 0.15
+    """Log-normal std of each taxel's gain: taxels of one array differ by 10-20 %."""
+    patch_gain_spread: float = 0.2
+    """Log-normal std of each patch's gain (the calibration measures it)."""
+    patch_gain_error: float = 0.05
+    """Relative std of the calibration's patch gain: a reference load is not exact."""
+    relaxation: float = 0.1
+    """Share of a load the skin first misses and creeps to (and keeps after release)."""
+    relaxation_time: float = 0.5
+    """Time constant (s) of that creep and recovery."""
+    crosstalk: float = 0.05
+    """Share of the mean of a taxel's neighbours' load it reads too (shared rows and columns)."""
+    saturation: float = 3.0
+    """Largest load (N) one taxel reports: the ADC's full scale."""
+    quantisation: float = 0.002
+    """ADC step (N): 12 bits over the full scale and the offsets."""
+    dead_fraction: Range = (0.0, 0.05)
+    """Share of taxels that read 0 (a broken line), uniform per skin."""
+    stuck_fraction: Range = (0.0, 0.01)
+    """Share of taxels stuck at a constant since the calibration, uniform per skin."""
+    stuck_level: Range = (0.05, 1.0)
+    """How far (N) above its baseline a stuck taxel reads, uniform."""
+    calibration_sigmas: float = 4.0
+    """Threshold = this many rest stds (as `tacgnn calibrate-skin`)."""
+    min_threshold: float = 0.05
+    """... at least this (N): drift since the calibration must not read as a touch."""
+    rest_frames: int = 16
+    """Rest frames the calibration averages."""
+
+    def __post_init__(self) -> None:
+        check(self.preset in ("ideal", "real"), "skin_signal.preset", f"must be 'ideal' or 'real', got {self.preset!r}")
+        for name in ("noise_floor", "drift_rate", "gain_spread", "patch_gain_spread", "patch_gain_error",
+                     "crosstalk", "quantisation", "min_threshold", "calibration_sigmas"):
+            value = getattr(self, name)
+            check(0 <= value <= 1e3, f"skin_signal.{name}", f"must be in [0, 1000], got {value}")
+        for name in ("offset", "calibration_age", "dead_fraction", "stuck_fraction", "stuck_level"):
+            lo, hi = getattr(self, name)
+            check(0 <= lo <= hi <= 1e6, f"skin_signal.{name}", f"needs 0 <= low <= high, got ({lo}, {hi})")
+        for name in ("dead_fraction", "stuck_fraction"):
+            check(getattr(self, name)[1] <= 1, f"skin_signal.{name}", "is a share of the taxels: at most 1")
+        check(0 <= self.relaxation < 1, "skin_signal.relaxation", f"must be in [0, 1), got {self.relaxation}")
+        check(1e-3 <= self.relaxation_time <= 1e3, "skin_signal.relaxation_time",
+              f"must be in [0.001, 1000] s, got {self.relaxation_time}")
+        check(self.saturation > self.min_threshold, "skin_signal.saturation",
+              f"must be above skin_signal.min_threshold ({self.min_threshold} N), or no touch is ever read; "
+              f"got {self.saturation}")
+        check(self.saturation <= 1e4, "skin_signal.saturation", f"must be <= 10000 N, got {self.saturation}")
+        check(2 <= self.rest_frames <= 1000, "skin_signal.rest_frames", f"must be in 2..1000, got {self.rest_frames}")
+
+    @property
+    def is_ideal(self) -> bool:
+        return self.preset == "ideal"
+
+
+def calibrated(raw: np.ndarray, baseline: np.ndarray, threshold: np.ndarray, gain: np.ndarray,
+               dead: np.ndarray) -> np.ndarray:
+    """Readings from raw values: max(raw - baseline, 0), 0 below the threshold, times the gain,
+    0 on dead taxels. The one place of the calibration's maths: the real hand's `SkinProcessor`
+    and the simulated skin both apply it.
+
+    Shapes: raw (..., T); the others broadcast against it. Returns float32.
+    """
+    x = np.maximum(raw - baseline, 0.0)
+    x[x < threshold] = 0.0
+    x *= gain
+    x = np.where(dead, 0.0, x)
+    return x.astype(np.float32)
+
+
+def neighbour_table(layout: SkinLayout, reach: float = 1.5) -> np.ndarray:
+    """(T, K) indices of each taxel's neighbours in its patch (closer than `reach` pitches), padded
+    with T (a column that reads 0)."""
+    lists = []
+    for patch, first in zip(layout.patches, layout.offsets()):
+        x = patch.local_positions()[0]
+        d = np.linalg.norm(x[:, None] - x[None], axis=-1)
+        near = (d < reach * patch.pitch) & (d > 0)
+        lists += [first + np.flatnonzero(row) for row in near]
+    width = max(1, max(len(n) for n in lists))
+    table = np.full((len(lists), width), len(lists), np.int64)
+    for i, n in enumerate(lists):
+        table[i, :len(n)] = n
+    return table
+
+
+class SkinSignal:
+    """One real skin per env: draws it at reset, calibrates it, and turns each frame's ideal forces
+    into calibrated readings (see the module docstring). With the 'ideal' preset it passes the
+    forces through unchanged and draws nothing.
+
+    Args:
+        config: the signal chain's parameters.
+        layout: the skin (patches, pitches).
+        num_envs: N.
+        frame_dt: seconds between frames (the control step).
+
+    Shapes (N envs, T taxels): ``__call__(forces (n, T), ids, rng) -> (n, T)`` float32.
+    """
+
+    STATE = ("memory", "drift", "gain", "offset", "baseline", "threshold", "calibration_gain", "dead", "stuck")
+
+    def __init__(self, config: SkinSignalConfig, layout: SkinLayout, num_envs: int, frame_dt: float):
+        self.config, self.frame_dt = config, frame_dt
+        t = layout.num_taxels
+        self.patch_of_taxel = layout.patch_index()
+        self.num_patches = len(layout.patches)
+        self.neighbours = neighbour_table(layout)
+        self._neighbour_count = np.maximum((self.neighbours < t).sum(1), 1).astype(np.float32)
+        shape = (num_envs, t)
+        self.memory = np.zeros(shape, np.float32)
+        self.drift = np.zeros(shape, np.float32)
+        self.gain = np.ones(shape, np.float32)
+        self.offset = np.zeros(shape, np.float32)
+        self.baseline = np.zeros(shape, np.float32)
+        self.threshold = np.zeros(shape, np.float32)
+        self.calibration_gain = np.ones(shape, np.float32)
+        self.dead = np.zeros(shape, bool)
+        self.stuck = np.zeros(shape, np.float32)  # level above the baseline; 0: not stuck
+
+    def reset(self, ids: np.ndarray, rngs: list[np.random.Generator]) -> None:
+        """Draw a new skin for each env in `ids` (from its own stream, `rngs[k]` for `ids[k]`) and
+        calibrate it on rest frames."""
+        c = self.config
+        if c.is_ideal:
+            return
+        t = self.memory.shape[1]
+        for env, g in zip(ids, rngs):
+            patch_gain = np.exp(c.patch_gain_spread * g.standard_normal(self.num_patches))
+            self.gain[env] = patch_gain[self.patch_of_taxel] * np.exp(c.gain_spread * g.standard_normal(t))
+            self.offset[env] = g.uniform(*c.offset, t)
+            dead = g.random(t) < g.uniform(*c.dead_fraction)
+            stuck = ~dead & (g.random(t) < g.uniform(*c.stuck_fraction))
+            # the calibration: rest frames give the baseline and the threshold; a patch load the gain
+            rest = self._quantise(self.offset[env] + c.noise_floor * g.standard_normal((c.rest_frames, t)))
+            rest[:, dead] = 0.0
+            self.baseline[env] = rest.mean(0)
+            self.threshold[env] = np.maximum(c.calibration_sigmas * rest.std(0), c.min_threshold)
+            self.dead[env] = (rest == 0).all(0)
+            measured = patch_gain * (1.0 + c.patch_gain_error * g.standard_normal(self.num_patches))
+            self.calibration_gain[env] = 1.0 / np.maximum(measured, 1e-3)[self.patch_of_taxel]
+            # since then: drift, and the stuck taxels' phantom presses
+            age = g.uniform(*c.calibration_age)
+            self.drift[env] = c.drift_rate * np.sqrt(age) * g.standard_normal(t)
+            self.stuck[env] = np.where(stuck, g.uniform(*c.stuck_level, t), 0.0)
+            self.memory[env] = 0.0
+
+    def __call__(self, forces: np.ndarray, ids: np.ndarray | slice, rng: np.random.Generator | None) -> np.ndarray:
+        """Calibrated readings (n, T) of envs `ids` from their ideal forces (n, T), advancing each
+        env's skin by one frame; per-frame noise from `rng` (None: no noise, no drift step)."""
+        if self.config.is_ideal:
+            return forces
+        raw = self.raw(forces, ids, rng)
+        return calibrated(raw, self.baseline[ids], self.threshold[ids], self.calibration_gain[ids], self.dead[ids])
+
+    def raw(self, forces: np.ndarray, ids: np.ndarray | slice, rng: np.random.Generator | None) -> np.ndarray:
+        """The raw values (n, T) the array reports for envs `ids` (what a driver publishes, before any
+        calibration), advancing each env's skin by one frame; also kept as `last_raw`."""
+        c = self.config
+        f = np.asarray(forces, np.float32)
+        padded = np.concatenate([f, np.zeros((len(f), 1), np.float32)], axis=1)
+        load = f + c.crosstalk * padded[:, self.neighbours].sum(-1) / self._neighbour_count
+        memory = self.memory[ids]
+        memory += (self.frame_dt / c.relaxation_time) * (load - memory)
+        self.memory[ids] = memory
+        signal = np.minimum(self.gain[ids] * ((1.0 - c.relaxation) * load + c.relaxation * memory), c.saturation)
+        drift = self.drift[ids]
+        if rng is not None:
+            noise = rng.standard_normal((2, *f.shape), dtype=np.float32)
+            drift += (c.drift_rate * np.sqrt(self.frame_dt)) * noise[0]
+            self.drift[ids] = drift
+            signal += c.noise_floor * noise[1]
+        raw = self._quantise(signal + self.offset[ids] + drift)
+        stuck = self.stuck[ids]
+        raw = np.where(stuck > 0, self.baseline[ids] + stuck, raw)
+        raw[self.dead[ids]] = 0.0
+        self.last_raw = raw
+        return raw
+
+    def _quantise(self, raw: np.ndarray) -> np.ndarray:
+        q = self.config.quantisation
+        raw = np.maximum(raw, 0.0)
+        return np.round(raw / q) * q if q > 0 else raw
+
+    def state_dict(self) -> dict[str, Any]:
+        return {name: getattr(self, name).copy() for name in self.STATE}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for name in self.STATE:
+            getattr(self, name)[...] = state[name]

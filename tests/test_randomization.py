@@ -1,0 +1,130 @@
+"""The hand as uncertain as a real one: ranges drawn as configured, latency and encoder effects with
+known answers, the nominal hand recovered when the ranges collapse, bad input named."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tacgnn.config import ConfigError, override
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, training_env_config
+from tacgnn.envs.randomization import HandIO, RandomizationConfig
+
+CFG = BaodingConfig(num_envs=8, tactile=False)
+
+
+def rollout(cfg, actions):
+    env = BaodingEnv(cfg)
+    env.reset(seed=3)
+    joints = []
+    for a in actions:
+        env.step(a)
+        joints.append(env.joint_pos.copy())
+    return env, np.array(joints)
+
+
+def test_training_randomises_the_hand_at_least_as_widely_as_the_authors():
+    r = training_env_config().randomization
+    assert r.enabled
+    assert r.damping_scale[0] <= 0.3 and r.damping_scale[1] >= 3.0
+    assert r.stiffness_scale[0] <= 0.75 and r.stiffness_scale[1] >= 1.5
+    assert r.friction_scale[0] <= 0.7 and r.friction_scale[1] >= 1.3
+    assert r.gravity == (7.0, 12.0) and r.action_latency[1] >= 0.04 and r.action_noise >= 0.05
+
+
+def test_every_env_draws_its_physics_inside_the_ranges_damping_log_uniformly():
+    cfg = replace(CFG, num_envs=64, randomization=RandomizationConfig(enabled=True))
+    env = BaodingEnv(cfg)
+    env.reset(seed=0)
+    r, hand = cfg.randomization, cfg.hand
+    damping = env.sim.batch.expanded("dof_damping")[:, env.joint_dof_adr] / np.asarray(hand.joint_damping())
+    assert ((r.damping_scale[0] - 1e-9 <= damping) & (damping <= r.damping_scale[1] + 1e-9)).all()
+    # log-uniform on [0.3, 3]: the median is the geometric mean, sqrt(0.9) = 0.95 (uniform: 1.65)
+    assert 0.8 < np.median(damping) < 1.15
+    friction = env.sim.batch.expanded("dof_frictionloss")[:, env.joint_dof_adr]
+    assert (friction >= 0).all() and (friction <= 0.03).all() and np.unique(friction).size > 500
+    mass = env.sim.batch.expanded("body_mass")[:, env.ball_body]
+    assert ((0.075 <= mass) & (mass <= 0.225)).all()
+    assert set(np.unique(env.hand_io.action_delay)) <= set(range(9)) and env.hand_io.action_delay.any()
+
+
+def test_collapsed_ranges_are_the_nominal_hand():
+    """`RandomizationConfig.nominal` is the starting point of the robustness table: with every range
+    on its nominal value the randomised hand moves as the nominal one."""
+    actions = np.random.default_rng(0).uniform(-1, 1, (8, 8, 16))
+    _, nominal = rollout(CFG, actions)
+    _, collapsed = rollout(replace(CFG, randomization=RandomizationConfig.nominal(CFG.ball_mass)), actions)
+    np.testing.assert_allclose(collapsed, nominal, atol=1e-9)
+
+
+def test_an_action_latency_of_one_control_step_delays_the_hand_by_one_step():
+    """With 20 ms of latency (one control step) the motors get each action one step late: the same
+    as the nominal hand sent the initial targets first, then the actions."""
+    actions = np.random.default_rng(1).uniform(-1, 1, (12, 8, 16))
+    late = RandomizationConfig.nominal(CFG.ball_mass, action_latency=(0.02, 0.02))
+    env, delayed = rollout(replace(CFG, randomization=late), actions)
+    first = BaodingEnv(CFG)
+    first.reset(seed=3)
+    hold = first.last_action.copy()
+    _, shifted = rollout(CFG, np.concatenate([hold[None], actions[:-1]]))
+    np.testing.assert_allclose(delayed, shifted, atol=1e-9)
+
+
+def test_a_latency_between_control_steps_switches_targets_inside_the_step():
+    io = HandIO(RandomizationConfig(enabled=True, action_latency=(0.01, 0.01)), 1, substeps=4, timestep=0.005,
+                control_dt=0.02)
+    drawn = {"action_latency": np.array([0.01]), "joint_latency": np.zeros(1), "skin_latency": np.zeros(1),
+             "backlash": np.zeros((1, 16)), "joint_bias": np.zeros((1, 16))}
+    io.reset(np.array([0]), drawn, np.zeros((1, 16)), np.zeros((1, 16)), np.zeros((1, 16)))
+    io.push(np.ones((1, 16)))
+    # 2 physics steps (10 ms) of the old target, then the new one
+    assert [float(io.target_at(s)[0, 0]) for s in range(4)] == [0.0, 0.0, 1.0, 1.0]
+
+
+def test_backlash_holds_the_reading_until_the_joint_has_crossed_half_the_band():
+    cfg = RandomizationConfig.nominal(0.15)
+    io = HandIO(cfg, 1, 4, 0.005, 0.02)
+    drawn = {"action_latency": np.zeros(1), "joint_latency": np.zeros(1), "skin_latency": np.zeros(1),
+             "backlash": np.full((1, 16), 0.02), "joint_bias": np.zeros((1, 16))}
+    zero = np.zeros((1, 16))
+    io.reset(np.array([0]), drawn, zero, zero, zero)
+    rng = np.random.default_rng(0)
+    readings = []
+    for q in (0.005, 0.009, 0.015, 0.0):
+        io.observe(np.full((1, 16), q), zero, rng)
+        readings.append(float(io.readings(slice(None), zero, zero)[0][0, 0]))
+    # within +-0.01 of the reading nothing moves; then it trails the joint by 0.01
+    np.testing.assert_allclose(readings, [0.0, 0.0, 0.005, 0.005], atol=1e-12)
+
+
+def test_joint_latency_reads_the_state_between_the_last_two_control_steps():
+    cfg = RandomizationConfig.nominal(0.15, joint_latency=(0.01, 0.01))
+    io = HandIO(cfg, 1, 4, 0.005, 0.02)
+    drawn = {"action_latency": np.zeros(1), "joint_latency": np.array([0.01]), "skin_latency": np.zeros(1),
+             "backlash": np.zeros((1, 16)), "joint_bias": np.zeros((1, 16))}
+    zero = np.zeros((1, 16))
+    io.reset(np.array([0]), drawn, zero, zero, zero)
+    io.observe(np.full((1, 16), 1.0), zero, np.random.default_rng(0))
+    np.testing.assert_allclose(io.readings(slice(None), zero, zero)[0], 0.5)  # half a step late
+
+
+def test_the_policy_reads_the_encoders_the_critic_the_truth():
+    cfg = replace(CFG, randomization=RandomizationConfig.nominal(CFG.ball_mass, joint_bias=(0.01, 0.01)))
+    env = BaodingEnv(cfg)
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(env.last_action.copy())
+    truth = env.groundtruth_obs()
+    scale = 2 / (env.joint_high - env.joint_low)  # positions are scaled to [-1, 1]
+    np.testing.assert_allclose(obs[:, :16] - truth[:, :16], np.broadcast_to(0.01 * scale, (8, 16)), atol=1e-5)
+
+
+@pytest.mark.parametrize("key,value", [
+    ("randomization.action_latency", [0.0, 0.012]),  # not a whole number of 5 ms steps
+    ("randomization.joint_latency", [-0.005, 0.0]),
+    ("randomization.damping_scale", [3.0, 0.3]),
+    ("randomization.action_noise", -0.1),
+    ("randomization.gravity", [1e308, 1e308]),
+])
+def test_bad_randomisation_names_its_key(key, value):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        override(BaodingConfig(randomization=RandomizationConfig(enabled=True)), {key: value})
