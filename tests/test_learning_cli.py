@@ -58,7 +58,7 @@ def _bad_file(tmp_path, policy, kind):
 
 @pytest.mark.parametrize("kind, named", [
     ("missing", "not found"), ("empty", "empty"), ("truncated", "truncated or corrupt"),
-    ("text", "truncated or corrupt"), ("foreign", "not a tacgnn PPO checkpoint"), ("perception", "lacks"),
+    ("text", "is a text file, not a policy file"), ("foreign", "not a tacgnn PPO checkpoint"), ("perception", "lacks"),
 ])
 def test_evaluate_names_a_bad_checkpoint_file(tmp_path, policy, capsys, kind, named):
     path = _bad_file(tmp_path, policy, kind)
