@@ -1,12 +1,14 @@
 """Speed of the simulation: raw physics, the Baoding env with the skin on, the skin alone.
 
-Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200]
+Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200] [--hand nominal|real]
 Prints one table; docs/results.md quotes it. Targets: env >= 80 % of the raw
 physics rate, >= 10,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
 "env/physics" is the share of an env step spent in MuJoCo (the physics rate the env
 keeps); "raw replay" steps the same batch with the same controls and nothing else. The
 skin (readings with noise, positions) is timed on the env run's last state, the one whose
-contacts and active taxels the table reports.
+contacts and active taxels the table reports. ``--hand real`` runs the hand of training
+(`training_env_config`: randomised physics, latencies, encoder effects, the real skin and its
+calibration) with the skin observed, as a blind policy's env.
 """
 
 from __future__ import annotations
@@ -14,7 +16,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from dataclasses import replace
+
+from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, training_env_config
 from tacgnn.envs.scripted import FingerWave
 from tacgnn.user_errors import run_script
 
@@ -26,9 +30,9 @@ def timed(fn, repeats: int) -> float:
     return time.perf_counter() - start
 
 
-def bench(num_envs: int, steps: int, nthread: int) -> dict:
-    cfg = BaodingConfig(num_envs=num_envs)
-    cfg = type(cfg)(**{**cfg.__dict__, "sim": type(cfg.sim)(nthread=nthread)})
+def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal") -> dict:
+    cfg = BaodingConfig() if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
+    cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
     env = BaodingEnv(cfg)
     obs, _ = env.reset(seed=0)
     wave = FingerWave(env.last_action[0], num_envs, seed=0)
@@ -66,7 +70,7 @@ def bench(num_envs: int, steps: int, nthread: int) -> dict:
     raw_time = timed(raw_step, steps)
     n = num_envs * steps
     return {
-        "envs": num_envs, "threads": nthread,
+        "hand": hand, "envs": num_envs, "threads": nthread,
         "env steps/s": n / env_time,
         "physics steps/s in env": n * env.substeps / physics[0],
         "env physics steps/s": n * env.substeps / env_time,
@@ -83,8 +87,10 @@ def main() -> None:
     parser.add_argument("--envs", type=int, nargs="+", default=[64, 128, 256])
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--threads", type=int, nargs="+", default=[2])
+    parser.add_argument("--hand", choices=["nominal", "real"], nargs="+", default=["nominal", "real"],
+                        help="the nominal hand, or the hand of training (randomised, the real skin observed)")
     args = parser.parse_args()
-    rows = [bench(n, args.steps, t) for t in args.threads for n in args.envs]
+    rows = [bench(n, args.steps, t, h) for h in args.hand for t in args.threads for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
     fmt = {"env/physics": "{:.2f}"}

@@ -7,6 +7,7 @@ import pytest
 
 from tacgnn.config import ConfigError
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, RewardConfig
+from tacgnn.envs.baoding_terms import reward_terms
 from tacgnn.envs.observation import BALL_COLUMNS, canonical_ball_order
 from tacgnn.learning.evaluate import _turns
 
@@ -107,16 +108,16 @@ def test_canonical_order_puts_the_pair_in_one_half_turn():
 def test_alive_and_capped_rotation_terms():
     cfg = BaodingConfig(num_envs=3, task="continuous", tactile=False,
                         reward=RewardConfig(alive=0.2, rotation_cap_deg=4.0))
-    env = BaodingEnv(cfg)
     d_angle = np.deg2rad(np.array([2.0, 10.0, -10.0]))
     fall = np.array([False, False, True])
     none = np.zeros(3, bool)
-    terms = env._reward_terms(d_angle, np.zeros((3, 16)), none, fall, none, np.zeros((3, 8)))
+    still = np.zeros((3, 16))
+    terms = reward_terms(cfg, d_angle, still, still, still, none, fall, none, np.zeros((3, 8)))
     np.testing.assert_allclose(terms["alive"], [0.2, 0.2, 0.0])
     np.testing.assert_allclose(terms["rotation"], [1.0, 2.0, -5.0])  # 0.5 per degree, forward capped at 4
     assert terms["fall"][2] == -100.0
-    plain = BaodingEnv(replace(cfg, reward=RewardConfig()))._reward_terms(
-        d_angle, np.zeros((3, 16)), none, fall, none, np.zeros((3, 8)))
+    plain = reward_terms(replace(cfg, reward=RewardConfig()), d_angle, still, still, still, none, fall, none,
+                         np.zeros((3, 8)))
     np.testing.assert_allclose(plain["rotation"], [1.0, 5.0, -5.0])
     assert not plain["alive"].any()
 

@@ -128,3 +128,18 @@ def test_the_policy_reads_the_encoders_the_critic_the_truth():
 def test_bad_randomisation_names_its_key(key, value):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         override(BaodingConfig(randomization=RandomizationConfig(enabled=True)), {key: value})
+
+
+def test_action_rate_and_effort_costs_known_answer():
+    """action_rate x |a_t - a_(t-1)|^2 and effort x sum (torque / nominal limit)^2, per env."""
+    from tacgnn.envs.baoding_terms import reward_terms
+
+    cfg = replace(CFG, reward=replace(CFG.reward, action_rate=-0.01, effort=-0.1))
+    change = np.zeros((2, 16))
+    change[0, :4] = 2.0  # four joints flipped end to end
+    effort = np.zeros((2, 16))
+    effort[1, :3] = 1.0  # three joints at the limit
+    none = np.zeros(2, bool)
+    terms = reward_terms(cfg, np.zeros(2), np.zeros((2, 16)), change, effort, none, none, none, np.zeros((2, 8)))
+    np.testing.assert_allclose(terms["action_rate"], [-0.16, 0.0])
+    np.testing.assert_allclose(terms["effort"], [0.0, -0.3])

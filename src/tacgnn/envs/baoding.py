@@ -225,7 +225,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                 "buffers": {name: getattr(self, name).copy() for name in self.EPISODE_STATE},
                 "rng": self.rng_state(), "hand_io": self.hand_io.state_dict(),
                 "skin_signal": self.skin_signal.state_dict(),
-                "skin_history": None if self._skin_history is None else [a.copy() for a in self._skin_history]}
+                "skin_history": {} if self._skin_history is None else
+                dict(zip(("frames", "positions"), (a.copy() for a in self._skin_history)))}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what `state_dict` saved, into an env built from the same config.
@@ -255,8 +256,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.hand_io.load_state_dict(state["hand_io"])
         self.skin_signal.load_state_dict(state["skin_signal"])
         if self._skin_history is not None:
-            for mine, saved in zip(self._skin_history, state["skin_history"]):
-                mine[...] = saved
+            for mine, name in zip(self._skin_history, ("frames", "positions")):
+                mine[...] = state["skin_history"][name]
 
     # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):

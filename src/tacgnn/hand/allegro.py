@@ -115,17 +115,18 @@ class HandConfig:
             for name, (lo, hi), (jlo, jhi) in zip(JOINT_NAMES, self.target_ranges, self.joint_ranges):
                 check(jlo <= lo < hi <= jhi, "hand.target_ranges",
                       f"joint {name}: ({lo}, {hi}) must be increasing and inside its joint range ({jlo}, {jhi})")
-        _check_per_joint(self.stiffness, "hand.stiffness", lambda v: v > 0, "> 0")
-        _check_per_joint(self.damping, "hand.damping", lambda v: v >= 0, ">= 0")
-        _check_per_joint(self.torque_limit, "hand.torque_limit", lambda v: v > 0, "> 0")
+        # bounds a simulated finger stays stable and meaningful within (the authors' values: 3, 0.1, 0.5)
+        _check_per_joint(self.stiffness, "hand.stiffness", lambda v: 0 < v <= 1000, "in (0, 1000] N m/rad")
+        _check_per_joint(self.damping, "hand.damping", lambda v: 0 <= v <= 100, "in [0, 100] N m s/rad")
+        _check_per_joint(self.torque_limit, "hand.torque_limit", lambda v: 1e-3 <= v <= 100, "in [0.001, 100] N m")
         # per-joint values as a tuple of floats (hashable, comparable)
         for name in ("stiffness", "damping", "torque_limit"):
             if isinstance(getattr(self, name), (tuple, list)):
                 object.__setattr__(self, name, _per_joint(getattr(self, name)))
-        check(self.armature >= 0, "hand.armature", f"must be >= 0, got {self.armature}")
+        check(0 <= self.armature <= 1, "hand.armature", f"must be in [0, 1] kg m^2, got {self.armature}")
         check(-90 <= self.palm_tilt_deg <= 90, "hand.palm_tilt_deg", f"must be in [-90, 90], got {self.palm_tilt_deg}")
-        check(self.friction > 0, "hand.friction", f"must be positive, got {self.friction}")
-        check(self.link_density > 0, "hand.link_density", f"must be positive, got {self.link_density}")
+        check(0 < self.friction <= 100, "hand.friction", f"must be in (0, 100], got {self.friction}")
+        check(0 < self.link_density <= 1e5, "hand.link_density", f"must be in (0, 1e5] kg/m^3, got {self.link_density}")
 
     def joint_target_ranges(self) -> tuple[tuple[float, float], ...]:
         """The 16 (low, high) ranges position targets are clipped to: `target_ranges` or the joint ranges."""

@@ -146,7 +146,7 @@ class RslBaodingEnv(VecEnv):
         """Restore what `state_dict` saved, into an env built from the same config."""
         if self.privileged_critic and "critic_obs" not in state:
             raise ValueError("saved env state has no critic observations: it was trained without a privileged critic")
-        env_keys = ("sim_state", "model_fields", "buffers", "rng")
+        env_keys = ("sim_state", "model_fields", "buffers", "rng", "hand_io", "skin_signal", "skin_history")
         self.env.load_state_dict(_to_numpy({k: state[k] for k in env_keys}))
         critic = state["critic_obs"].numpy().copy() if self.privileged_critic else None
         self._obs = self._wrap(state["obs"].numpy().copy(), critic)

@@ -45,7 +45,7 @@ class SimConfig:
     touch and from `width` deep on; closer to 1 is harder."""
 
     def __post_init__(self) -> None:
-        check(0 < self.timestep <= 0.02, "sim.timestep", f"must be in (0, 0.02], got {self.timestep}")
+        check(1e-4 <= self.timestep <= 0.02, "sim.timestep", f"must be in [0.0001, 0.02] s, got {self.timestep}")
         check(self.integrator in ("euler", "implicitfast", "implicit", "rk4"), "sim.integrator",
               f"unknown integrator {self.integrator!r}")
         check(1 <= self.contacts_per_patch <= 16, "sim.contacts_per_patch", "must be in 1..16")
@@ -55,6 +55,7 @@ class SimConfig:
               "'warp' needs the mujoco-warp package (pip install mujoco-warp==4.0.0)")
         check(self.warp_nconmax >= 1, "sim.warp_nconmax", f"must be >= 1, got {self.warp_nconmax}")
         check(self.warp_njmax >= 1, "sim.warp_njmax", f"must be >= 1, got {self.warp_njmax}")
+        check(self.contact_timeconst <= 1, "sim.contact_timeconst", f"must be <= 1 s, got {self.contact_timeconst}")
         check(self.contact_timeconst >= 2 * self.timestep - 1e-12, "sim.contact_timeconst",
               f"must be >= 2 x sim.timestep ({2 * self.timestep}) or the contacts are unstable, "
               f"got {self.contact_timeconst}")
