@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import time
-
 from dataclasses import replace
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, training_env_config
