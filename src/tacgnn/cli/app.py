@@ -1,4 +1,29 @@
-"""The parser of every sub-command and `main`, which runs one and reports a user's mistake in one line."""
+"""The `tacgnn` command line: one sub-command per user-facing job.
+
+    tacgnn demo                      the shipped TacGNN policy on Simple: success rate and a video
+    tacgnn render --out ep.mp4       video of an env (scripted, or --policy FILE) and a skin picture
+    tacgnn view                      interactive MuJoCo viewer (needs a display)
+    tacgnn config                    print the default Baoding config as YAML
+    tacgnn make-dataset baoding --out data/baoding      skin frames + ball positions (HDF5 shards)
+    tacgnn make-dataset grasp --object cube --out data/cube   power grasps + object poses
+    tacgnn train-perception --task baoding --model tacgnn --dataset data/baoding --run runs/p1
+    tacgnn eval-perception --checkpoint runs/p1/checkpoint.pt --dataset data/baoding [--dead 0.1] [--lose-patch palm]
+    tacgnn train-policy --run-dir runs/gt --env obs_mode=groundtruth --ppo max_iterations=2000 [--resume]
+    tacgnn evaluate runs/gt/model_002000.pt --task middle --episodes 500
+    tacgnn robustness runs/gt/model_002000.pt   the policy on hands and skins as real ones differ
+    tacgnn sysid recording.npz --out outputs/sysid_hand.yaml    per-joint stiffness/damping from steps
+    tacgnn sysid --make-recording rec.npz --random-truth        a simulated recording to try it on
+    tacgnn calibrate-skin rest.npz --out skin_calibration.npz   real skin: baseline, thresholds, gains
+    tacgnn real-hand run --calibration skin_calibration.npz     the blind policy on a real hand (ROS)
+
+Config keys are dotted and checked before anything runs (an unknown key or a bad value is
+one line): demo, render, view, config and make-dataset take ``--config FILE.yaml`` and
+``--set key=value`` (e.g. ``--set task=middle sim.timestep=0.004``); train-perception,
+sysid, real-hand and evaluate take ``--set``; train-policy takes ``--env``, ``--ppo`` and
+``--perception``; robustness takes none (its rows are the changes). A wrong file, key or value
+is reported in one line (exit code 2); ``--debug`` shows the traceback. Every command's
+``--help`` lists its options with their defaults.
+"""
 
 from __future__ import annotations
 
@@ -23,21 +48,26 @@ def cmd_evaluate(args) -> int:
     return evaluate.main(args.rest, parser_class=Parser)
 
 
+def cmd_robustness(args) -> int:
+    from tacgnn.learning import robustness
+
+    return robustness.main(args.rest, parser_class=Parser)
+
+
 #: Commands that parse their own flags (--help included).
-PASSTHROUGH = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate}
+PASSTHROUGH = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate, "robustness": cmd_robustness}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    import tacgnn.cli
-
-    parser = Parser(prog="tacgnn", description=tacgnn.cli.__doc__)
+    parser = Parser(prog="tacgnn", description=__doc__)
     parser.add_argument("--debug", action="store_true",
                         help="show the traceback of an error (taken anywhere in the arguments)")
     sub = parser.add_subparsers(dest="command", required=True)
     simulation.register(sub)
     data.register(sub)
     for name, fn, text in (("train-policy", cmd_train_policy, "train PPO on the Baoding env (see --help)"),
-                           ("evaluate", cmd_evaluate, "success rate of a policy on simple/middle/hard")):
+                           ("evaluate", cmd_evaluate, "success rate of a policy on simple/middle/hard"),
+                           ("robustness", cmd_robustness, "a policy on hands and skins that differ as real ones do")):
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(fn=fn)
