@@ -142,8 +142,12 @@ def _run(tree: str, cfg, tmp_dir) -> None:
         batch = min(cfg.batch_size, 64)  # frame buffer up to 10 GB: allowed, but not in a test
         small = replace(cfg, batch_size=batch, buffer_size=max(batch, min(cfg.buffer_size, 1024)))
         perception = OnlinePerception(small, to_dict(default_skin()))
+        if small.temporal:  # a perception with memory reads the steps of the envs it is bound to
+            from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+
+            BaodingEnv(BaodingConfig(num_envs=2, obs_mode="perceived"), perception=perception)
         readings = np.random.default_rng(0).uniform(0, 1, (2, 653)) * (np.arange(653) % 7 == 0)
-        joints = np.zeros((2, 16)) if cfg.model.joint_inputs else None
+        joints = np.zeros((2, 16)) if cfg.model.joint_inputs or small.temporal else None  # memory reads them
         assert np.isfinite(perception(readings, np.random.default_rng(1).normal(0, 0.05, (2, 653, 3)), joints)).all()
     elif tree == "train-perception":
         import torch

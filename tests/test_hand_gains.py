@@ -40,8 +40,8 @@ def test_per_joint_values_from_yaml_and_overrides():
 
 @pytest.mark.parametrize("key,value,message", [
     ("stiffness", (1.0,) * 15, "needs one value or 16"),
-    ("stiffness", (1.0,) * 15 + (0.0,), "joint thumb_j3: must be a finite number > 0"),
-    ("damping", (0.1,) * 15 + (-0.1,), "joint thumb_j3: must be a finite number >= 0"),
+    ("stiffness", (1.0,) * 15 + (0.0,), "joint thumb_j3: must be a finite number in \\(0, 1000\\]"),
+    ("damping", (0.1,) * 15 + (-0.1,), "joint thumb_j3: must be a finite number in \\[0, 100\\]"),
     ("damping", float("nan"), "hand.damping"),
 ])
 def test_bad_per_joint_values_are_named(key, value, message):

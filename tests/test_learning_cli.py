@@ -12,7 +12,7 @@ from test_ppo import ENV, ppo
 from tacgnn import cli
 from tacgnn.config import to_dict
 from tacgnn.envs.baoding import BaodingConfig
-from tacgnn.learning.checkpoint import CheckpointError, check_policy_fits, list_checkpoints
+from tacgnn.learning.checkpoint import FORMAT_VERSION, CheckpointError, check_policy_fits, list_checkpoints
 from tacgnn.learning.train import train
 
 TINY = ["actor_hidden_dims=[16]", "critic_hidden_dims=[16]", "num_envs=2", "num_mini_batches=2"]
@@ -52,7 +52,7 @@ def _bad_file(tmp_path, policy, kind):
     elif kind == "foreign":
         torch.save({"weights": torch.zeros(3)}, path)
     elif kind == "perception":  # a perception checkpoint given where a policy belongs
-        torch.save({"format_version": 1, "config": {"task": "baoding"}, "model": {}, "dataset": {}}, path)
+        torch.save({"format_version": FORMAT_VERSION, "config": {"task": "baoding"}, "model": {}, "dataset": {}}, path)
     return path  # "missing": not written
 
 

@@ -14,7 +14,7 @@ from tensordict import TensorDict
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.observation import BALL_COLUMNS
 from tacgnn.files import FileProblem
-from tacgnn.learning.checkpoint import CheckpointError, list_checkpoints, load_checkpoint
+from tacgnn.learning.checkpoint import FORMAT_VERSION, CheckpointError, list_checkpoints, load_checkpoint
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.evaluate import evaluate, seed_bootstrap_difference, wilson_interval
 from tacgnn.learning.policy import load_policy
@@ -125,7 +125,7 @@ def test_train_writes_config_checkpoint_and_events(run2):
     assert list(run2.glob("events.out.tfevents.*"))
     assert [p.name for p in list_checkpoints(run2)] == ["model_000001.pt", "model_000002.pt"]
     ckpt = torch.load(run2 / "model_000002.pt", weights_only=True)
-    assert ckpt["iteration"] == 2 and ckpt["format_version"] == 1
+    assert ckpt["iteration"] == 2 and ckpt["format_version"] == FORMAT_VERSION
     assert ckpt["env_config"]["obs_mode"] == "groundtruth" and ckpt["env_config"]["num_envs"] == 8
     assert ckpt["ppo_config"]["max_iterations"] == 2
     assert not list(run2.glob(".*.tmp"))

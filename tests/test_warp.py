@@ -24,15 +24,22 @@ from tacgnn.learning.online_perception import OnlinePerception, OnlinePerception
 from tacgnn.perception.models import PerceptionModelConfig  # noqa: E402
 from tacgnn.sim.backend import make_sim  # noqa: E402
 from tacgnn.sim.scene import SimConfig  # noqa: E402
+from tacgnn.sim.skin_signal import SkinSignalConfig  # noqa: E402
 from tacgnn.sim.tactile import TactileModel, skin_sensor_columns  # noqa: E402
 from tacgnn.sim.tactile_device import DeviceTactile  # noqa: E402
 from tacgnn.sim.warp_backend import WarpSim, WarpUnavailable  # noqa: E402
 
-# Per-env gravity, friction, gains, damping and torque limits; the ball mass stays at its compiled value
-# (MuJoCo 4's C engine keeps a free body's compiled inertia, dof_M0, unless set_const runs;
-# MuJoCo Warp recomputes it: see warp_backend.py).
-CFG = BaodingConfig(num_envs=4, task="middle", disturbance_interval=1,
-                    randomization=RandomizationConfig(enabled=True, ball_mass=(0.15, 0.15)))
+# Per-env gravity, friction, gains, damping and torque limits (joint friction's constraint rows part the
+# engines by more than these tests allow); the ball mass and the armature stay at their compiled values (MuJoCo 4's C engine keeps a free body's compiled inertia,
+# dof_M0, unless set_const runs; MuJoCo Warp recomputes it: see warp_backend.py). The motors' and
+# encoders' effects and the real skin's signal chain are the engine's neighbours, not its part: they run
+# on the host, alike for both engines (tests/test_randomization.py, tests/test_skin_signal.py).
+ON_TIME = {"action_latency": (0.0, 0.0), "joint_latency": (0.0, 0.0), "skin_latency": (0.0, 0.0),
+           "backlash": (0.0, 0.0), "joint_bias": (0.0, 0.0), "joint_noise": 0.0, "velocity_noise": 0.0,
+           "action_noise": 0.0, "joint_friction": (0.0, 0.0)}
+CFG = BaodingConfig(num_envs=4, task="middle", disturbance_interval=1, skin_signal=SkinSignalConfig(preset="ideal"),
+                    randomization=RandomizationConfig(enabled=True, ball_mass=(0.15, 0.15), armature_scale=(1.0, 1.0),
+                                                      **ON_TIME))
 ENV_BUFFERS = ("episode_steps", "angle", "vec_angle", "hold_count", "last_action")
 
 
@@ -41,7 +48,8 @@ def on_warp(cfg: BaodingConfig) -> BaodingConfig:
 
 
 def copy_env(c: BaodingEnv, w: BaodingEnv) -> None:
-    """Give the Warp env the C env's whole state: physics, per-env model fields, task buffers, RNGs."""
+    """Give the Warp env the C env's whole state: physics, per-env model fields, task buffers, RNGs,
+    motors and encoders."""
     for name in ("qpos", "qvel", "ctrl", "xfrc_applied", "qacc_warmstart"):
         getattr(w.sim, name)[:] = getattr(c.sim, name)
     randomized = [name for name in mujoco.batch.MODEL_FIELDS if c.sim.batch.expanded(name) is not None]
@@ -51,6 +59,7 @@ def copy_env(c: BaodingEnv, w: BaodingEnv) -> None:
     for name in ENV_BUFFERS:
         getattr(w, name)[:] = getattr(c, name)
     w.set_rng_state(c.rng_state())
+    w.hand_io.load_state_dict(c.hand_io.state_dict())  # the motors' queued targets, the encoders' state
     w.sim.forward()
 
 
@@ -126,7 +135,8 @@ def test_skin_fed_by_the_engine_reads_the_device_not_the_host(pair):
 def test_warp_env_steps_with_the_skin_on_the_device():
     """The env on Warp takes its skin from the device arrays and hands it out there: a step
     copies no skin array to the host, and what it hands out is the compiled skin's reading."""
-    cfg = on_warp(replace(CFG, num_envs=2, obs_mode="tactile"))
+    # randomisation off: its noise draws would come before the skin's in the step
+    cfg = on_warp(replace(CFG, num_envs=2, obs_mode="tactile", randomization=RandomizationConfig()))
     env = BaodingEnv(cfg)
     env.reset(seed=0)
     compiled, t = TactileModel(cfg.skin, env.model), cfg.skin.num_taxels

@@ -212,6 +212,10 @@ class BaodingConfig:
               f"('tactile': in its ground-truth view), not '{self.obs_mode}'")
         if self.randomization.enabled:
             self.randomization.check_latencies(self.sim.timestep)
+            for name in ("ball_mass", "armature_scale"):  # they change the mass matrix's constants (dof_M0)
+                lo, hi = getattr(self.randomization, name)
+                check(self.sim.backend != "warp" or lo == hi, f"randomization.{name}",
+                      f"MuJoCo Warp keeps one mass matrix for all envs: give one value (low = high), got ({lo}, {hi})")
         check(self.tactile or self.obs_mode not in ("tactile", "perceived"), "tactile",
               f"obs_mode '{self.obs_mode}' needs tactile: true")
 
