@@ -29,11 +29,12 @@ from tacgnn.sim.tactile import TactileModel, skin_sensor_columns  # noqa: E402
 from tacgnn.sim.tactile_device import DeviceTactile  # noqa: E402
 from tacgnn.sim.warp_backend import WarpSim, WarpUnavailable  # noqa: E402
 
-# Per-env gravity, friction, gains, damping and torque limits (joint friction's constraint rows part the
-# engines by more than these tests allow); the ball mass and the armature stay at their compiled values (MuJoCo 4's C engine keeps a free body's compiled inertia,
-# dof_M0, unless set_const runs; MuJoCo Warp recomputes it: see warp_backend.py). The motors' and
-# encoders' effects and the real skin's signal chain are the engine's neighbours, not its part: they run
-# on the host, alike for both engines (tests/test_randomization.py, tests/test_skin_signal.py).
+# Per-env gravity, friction, gains, damping and torque limits (joint friction's constraint rows part
+# the engines by more than these tests allow); the ball mass and the armature stay at their compiled
+# values (MuJoCo 4's C engine keeps a free body's compiled inertia, dof_M0, unless set_const runs;
+# MuJoCo Warp recomputes it: see warp_backend.py). The motors' and encoders' effects and the real
+# skin's signal chain are the engine's neighbours, not its part: they run on the host, alike for both
+# engines (tests/test_randomization.py, tests/test_skin_signal.py).
 ON_TIME = {"action_latency": (0.0, 0.0), "joint_latency": (0.0, 0.0), "skin_latency": (0.0, 0.0),
            "backlash": (0.0, 0.0), "joint_bias": (0.0, 0.0), "joint_noise": 0.0, "velocity_noise": 0.0,
            "action_noise": 0.0, "joint_friction": (0.0, 0.0)}
