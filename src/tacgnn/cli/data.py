@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 from typing import Any
 
 from tacgnn.cli.common import add_config_options, baoding_config, build_config, count, fraction, seed
 from tacgnn.config import ConfigError, override, parse_overrides
-from tacgnn.files import check_writable
+from tacgnn.files import atomic_write_text, check_writable
 
 
 def cmd_make_dataset(args) -> int:
@@ -98,13 +100,24 @@ def cmd_eval_perception(args) -> int:
 
     for patch in args.lose_patch:  # an unknown patch name fails before any evaluation
         patch_taxels(read_manifest(args.dataset)["metadata"]["skin"], patch)
+    if args.out:
+        check_writable(Path(args.out).parent)
+    rows: list[dict[str, Any]] = []
     for dead in args.dead:
         metrics = evaluate(args.checkpoint, args.dataset, dead_fraction=dead, seed=args.seed, whole=args.whole)
         print(f"dead taxels {dead:.0%}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
+        rows.append({"dead_fraction": dead, **metrics})
     for patch in args.lose_patch:
         metrics = patch_loss(args.checkpoint, args.dataset, patch, whole=args.whole)
         print(f"without the {patch}: position_rmse_cm {metrics[f'position_rmse_cm_without_{patch}']:.4f} "
               f"(intact {metrics['position_rmse_cm']:.4f}, ratio {metrics['rmse_ratio']:.2f})")
+        rows.append({"lost_patch": patch, **metrics})
+    if args.out:
+        from tacgnn.provenance import provenance
+
+        result = {"rows": rows, "provenance": provenance({"checkpoint": args.checkpoint}, args.seed,
+                                                         {"dataset": args.dataset, "whole": args.whole})}
+        atomic_write_text(args.out, json.dumps(result, indent=1))
     return 0
 
 
@@ -161,4 +174,5 @@ def register(sub) -> None:
     p.add_argument("--lose-patch", nargs="*", default=[], metavar="PATCH",
                    help="also report the error with every taxel of these skin patches at 0 (e.g. palm)")
     p.add_argument("--seed", type=seed, default=0, help="which taxels are dead")
+    p.add_argument("--out", help="also write the figures as JSON here, with their provenance")
     p.set_defaults(fn=cmd_eval_perception)
