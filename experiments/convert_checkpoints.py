@@ -30,7 +30,7 @@ from typing import Any
 
 import torch
 
-from tacgnn.config import from_dict, to_dict
+from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.files import read_weights
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerceptionConfig
@@ -162,7 +162,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out-dir", type=Path, help="write converted files here instead of in place")
     parser.add_argument("--dry-run", action="store_true", help="say what would be converted, write nothing")
     args = parser.parse_args(argv)
-    for path, name in files_of(args.paths):
+    files = files_of(args.paths)
+    names = [name for _, name in files]
+    clash = sorted({str(n) for n in names if names.count(n) > 1})
+    if args.out_dir is not None and clash:  # two inputs would be written to one place
+        raise ConfigError(f"--out-dir: several inputs are named {', '.join(clash)}; give their folders instead")
+    for path, name in files:
         new = convert(read_weights(path, "checkpoint"), path)
         if new is None:
             print(f"{path}: already current")
