@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-ros bench install clean
+.PHONY: demo test test-fast test-ros bench install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	MUJOCO_GL=egl $(PY) -m pytest
+
+# The quick subset while working (under 2 minutes on 2 cores): no training, resuming, rendering or Warp
+test-fast: $(STAMP)
+	MUJOCO_GL=egl $(PY) -m pytest -m "not slow"
 
 # The real-hand path through a real ROS 1 master (tests/test_real_ros.py): installs Debian's
 # ROS 1 where apt-get runs as root, and links its Python modules into the venv (appended

@@ -9,6 +9,19 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the CLI: no spinning O
 import pytest  # noqa: E402
 
 EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+# Files whose tests train, kill and resume runs, compile MuJoCo Warp's kernels, render videos or run
+# whole commands: `make test` runs them, `make test-fast` (-m "not slow") leaves them out.
+SLOW_FILES = {"test_warp.py", "test_warp_ppo.py", "test_kill_resume.py", "test_training_output.py", "test_sysid.py",
+              "test_commands.py", "test_script_errors.py", "test_distributed.py", "test_real_ros.py",
+              "test_continuous_pace.py", "test_demo.py", "test_render.py", "test_policy_curves.py",
+              "test_perception_loop.py", "test_temporal_loop.py", "test_learning_cli.py", "test_faithful_hand.py",
+              "test_real_one_controller.py", "test_config_overrides.py", "test_ppo.py", "test_datasets.py"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in SLOW_FILES:
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(scope="session")
