@@ -16,7 +16,8 @@ it will see on the hand. Per frame, for each env and taxel i with ideal force f_
 so a step load first reads (1 - relaxation) of itself and creeps up (creep), and a released
 taxel keeps reading part of its past load for a while (hysteresis). The per-taxel gain g_i is a
 patch gain times a taxel's own spread; the offset is the taxel's rest value; the drift a slow
-ramp from where the calibration left it (over seconds, temperature drift is close to linear). Dead taxels read 0; stuck taxels read a constant above their baseline (a phantom press).
+ramp from where the calibration left it (over seconds, temperature drift is close to linear).
+Dead taxels read 0; stuck taxels read a constant above their baseline (a phantom press).
 
 Each env is one skin, drawn at reset and calibrated there as the real path does it: rest
 frames (nothing pressing) give the baseline (their mean) and the threshold (`calibration_sigmas`
