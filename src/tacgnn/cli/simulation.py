@@ -75,7 +75,9 @@ def cmd_demo(args) -> int:
     seconds = time.perf_counter() - start
     seen = "perceived by the skin (TacGNN)" if perception is not None else f"from '{env_cfg.obs_mode}'"
     changed = f" ({' '.join(args.set)})" if args.set else ""
-    print(f"Baoding, {task.capitalize()} task{changed}, policy {policy_file.name}: ball positions {seen}")
+    hand = "hands drawn as real ones differ" if env_cfg.randomization.enabled else "the nominal hand"
+    print(f"Baoding, {task.capitalize()} task{changed}, policy {policy_file.name}: ball positions {seen}, "
+          f"on {hand}, {env_cfg.skin_signal.preset} skin")
     print(f"  success rate:          {100 * result['success_rate']:.1f} % of {result['episodes']} episodes "
           f"(95 % CI {100 * result['ci95'][0]:.1f}-{100 * result['ci95'][1]:.1f})")
     print(f"  mean steps to success: {result['mean_steps_to_success']:.1f} (control at 50 Hz)")

@@ -108,7 +108,7 @@ class RandomizationConfig:
                       f"must be a whole number of physics steps (sim.timestep {timestep} s), got {value}")
 
     @classmethod
-    def nominal(cls, ball_mass: float, **changes: Any) -> RandomizationConfig:
+    def nominal(cls, ball_mass: float, /, **changes: Any) -> RandomizationConfig:
         """Enabled, every range collapsed onto the nominal hand (ball mass `ball_mass`, gravity 9.81,
         factors 1, no latency, friction, backlash or noise), then `changes` (e.g. damping_scale=(3, 3))."""
         points = {f.name: (1.0, 1.0) for f in fields(cls) if f.name in RANGES}

@@ -23,7 +23,7 @@ from tacgnn.envs.randomization import RandomizationConfig
 from tacgnn.files import atomic_write_text, check_writable
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.evaluate import evaluate
-from tacgnn.provenance import provenance
+from tacgnn.provenance import file_sha256, provenance
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ SKIN_ROWS = (
 def rows(uses_skin: bool) -> list[Row]:
     """The table's rows; the skin's rows only for a policy that reads the skin."""
     out = [Row("nominal", {}, {})]
-    out += [Row(name, changes, {}) for name, changes in HAND_ROWS]
+    out += [Row(name, changes, {}) for name, changes in HAND_ROWS if uses_skin or "skin_latency" not in changes]
     if uses_skin:
         out += [Row(name, {}, skin) for name, skin in SKIN_ROWS]
     out.append(Row("a real hand", None, {}))
@@ -87,17 +87,27 @@ def overrides(row: Row, ball_mass: float) -> dict[str, Any]:
 
 
 def robustness_table(checkpoint: str | Path, stored_env: Any, episodes: int, num_envs: int, seed: int,
-                     progress: Any = print) -> list[dict[str, Any]]:
-    """Evaluate `checkpoint` on every row; one result dict per row (`evaluate`'s, plus 'row')."""
+                     progress: Any = print, done: dict[str, dict[str, Any]] | None = None,
+                     after_row: Any = None) -> list[dict[str, Any]]:
+    """Evaluate `checkpoint` on every row; one result dict per row (`evaluate`'s, plus 'row').
+
+    Rows in `done` (by name) are taken as they are; `after_row(results)` is called after each new
+    row, so that an interrupted table loses at most the row under way.
+    """
     uses_skin = stored_env.obs_mode in ("perceived", "tactile")
     results = []
     for row in rows(uses_skin):
+        if done and row.name in done:
+            results.append(done[row.name])
+            continue
         result = evaluate(checkpoint, row.task, episodes, num_envs, seed,  # type: ignore[arg-type]
                           env_overrides=overrides(row, stored_env.ball_mass))
         result["row"] = row.name
         progress(f"  {row.name:<36} {row.task:<7} {100 * result['success_rate']:5.1f} %  "
                  f"(falls {100 * result['fall_rate']:.1f} %)")
         results.append(result)
+        if after_row is not None:
+            after_row(results)
     return results
 
 
@@ -129,13 +139,32 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
         check_writable(args.out.parent)  # before the hour of evaluation, not after it
     stored = ckpt.stored_env_config(ckpt.load_policy_file(args.checkpoint), args.checkpoint)
     print(f"{args.checkpoint}: {args.episodes} episodes per row, deterministic policy")
-    results = robustness_table(args.checkpoint, stored, args.episodes, args.envs, args.seed)
-    print(markdown(results), end="")
-    if args.out is not None:
+    settings = {"episodes": args.episodes, "envs": args.envs}
+    done = _finished_rows(args.out, args.checkpoint, args.seed, settings) if args.out is not None else {}
+
+    def save(results: list[dict[str, Any]]) -> None:
         for r in results:
-            r["provenance"] = provenance({"policy": args.checkpoint}, args.seed,
-                                         {"row": r["row"], "task": r["task"], "episodes": args.episodes,
-                                          "envs": args.envs})
+            r.setdefault("provenance", provenance({"policy": args.checkpoint}, args.seed,
+                                                  {"row": r["row"], "task": r["task"], **settings}))
         atomic_write_text(args.out, json.dumps(results, indent=2))
         atomic_write_text(args.out.with_suffix(".md"), markdown(results))
+
+    results = robustness_table(args.checkpoint, stored, args.episodes, args.envs, args.seed, done=done,
+                               after_row=save if args.out is not None else None)
+    print(markdown(results), end="")
     return 0
+
+
+def _finished_rows(out: Path, checkpoint: Path, seed: int, settings: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The rows an earlier run of the same policy file, seed and settings wrote to `out`."""
+    if not out.is_file():
+        return {}
+    try:
+        saved = json.loads(out.read_text())
+    except (OSError, ValueError):
+        return {}  # unreadable: made again (the file is written atomically, so this is not a cut-off run)
+    sha = file_sha256(checkpoint)
+    return {r["row"]: r for r in saved if isinstance(r, dict) and "row" in r
+            and r.get("provenance", {}).get("checkpoints", {}).get("policy", {}).get("sha256") == sha
+            and r["provenance"].get("seed") == seed
+            and all(r["provenance"].get("config", {}).get(k) == v for k, v in settings.items())}
