@@ -151,6 +151,8 @@ def main(argv: list[str] | None = None, parser_class: type[argparse.ArgumentPars
 
     results = robustness_table(args.checkpoint, stored, args.episodes, args.envs, args.seed, done=done,
                                after_row=save if args.out is not None else None)
+    if args.out is not None:
+        save(results)  # the table as this version's rows make it, also when every row was done
     print(markdown(results), end="")
     return 0
 
