@@ -1,8 +1,9 @@
-"""The shipped policies, converted to the current checkpoint format, act as they did before.
+"""Policies of the earlier checkpoint format, converted, act as they did before.
 
-`data/shipped_policy_outputs.npz` holds what the blind policy's temporal TacGNN perceived and
-what both policies commanded on the inputs below, computed from the files as they were shipped
-in format version 1; the converted files must give the same numbers, bit for bit.
+`data/format1_{blind,gt}_policy.pt` are the policy files shipped in format version 1 (a temporal
+TacGNN in the loop; its teacher); `data/shipped_policy_outputs.npz` holds what the blind policy's
+perception perceived and what both commanded on the inputs below, computed from those files as
+they were; `experiments/convert_checkpoints.py`'s conversions must give the same numbers, bit for bit.
 """
 
 from pathlib import Path
@@ -13,10 +14,11 @@ import pytest
 import torch
 
 from tacgnn.learning import checkpoint as ckpt
-from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER, load_perception, load_policy
+from tacgnn.learning.policy import SHIPPED_POLICY, load_perception, load_policy
 from tacgnn.perception.checkpoint import CheckpointError
 
-REFERENCE = Path(__file__).parent / "data" / "shipped_policy_outputs.npz"
+FORMAT_1 = Path(__file__).parent / "data"
+REFERENCE = FORMAT_1 / "shipped_policy_outputs.npz"
 N, T, STEPS = 4, 653, 6
 
 
@@ -36,12 +38,16 @@ def perceived(perception, g: np.random.Generator) -> np.ndarray:
     return np.stack(out)
 
 
-def test_converted_shipped_policies_act_as_before():
+def test_converted_policies_act_as_before(experiment_script, tmp_path):
+    converter = experiment_script("convert_checkpoints")
+    blind, teacher = tmp_path / "blind.pt", tmp_path / "teacher.pt"
+    for old, new in ((FORMAT_1 / "format1_blind_policy.pt", blind), (FORMAT_1 / "format1_gt_policy.pt", teacher)):
+        ckpt.save(new, converter.convert(torch.load(old, weights_only=True), old))
     torch.manual_seed(0)
     reference = np.load(REFERENCE)
     g = np.random.default_rng(0)
-    np.testing.assert_array_equal(perceived(load_perception(SHIPPED_POLICY), g), reference["perception"])
-    for path, key in ((SHIPPED_POLICY, "actions"), (SHIPPED_TEACHER, "teacher_actions")):
+    np.testing.assert_array_equal(perceived(load_perception(blind), g), reference["perception"])
+    for path, key in ((blind, "actions"), (teacher, "teacher_actions")):
         policy, _ = load_policy(path)
         obs = g.normal(0, 1, (8, ckpt.load_policy_file(path)["obs_dim"])).astype(np.float32)
         np.testing.assert_array_equal(policy(obs), reference[key])
