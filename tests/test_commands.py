@@ -20,18 +20,11 @@ from hypothesis import strategies as st
 
 from tacgnn.cli import build_parser, main
 from tacgnn.user_errors import report_user_errors
+from tests.test_cli_errors import _one_line_error
 
 POLICY = str(Path(__file__).resolve().parents[1] / "src" / "tacgnn" / "assets" / "baoding_policy.pt")
 
 
-def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    for text in expected:
-        assert text in err, err
-    return err
 
 
 def _plain_shell(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -147,12 +140,12 @@ def test_every_option_shows_its_default():
 
 
 def test_top_level_help_names_the_commands_that_take_config_and_set():
-    import tacgnn.cli
+    from tacgnn.cli import app
 
     parsers = _parsers()
     with_config = {name for name, p in parsers.items() if "--config" in p._option_string_actions}
     assert with_config == {"demo", "render", "view", "config", "make-dataset"}
-    assert "demo, render, view, config and make-dataset take ``--config FILE.yaml``" in tacgnn.cli.__doc__
+    assert "demo, render, view, config and make-dataset take ``--config FILE.yaml``" in app.__doc__
     with_set = {name for name, p in parsers.items() if "--set" in p._option_string_actions}
     assert with_set - with_config == {"train-perception", "sysid", "real-hand", "evaluate"}
 

@@ -11,6 +11,7 @@ import torch
 from real_policy import blind_policy
 
 from tacgnn.envs.baoding import BaodingEnv
+from tacgnn.envs.randomization import RandomizationConfig
 from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig, TaxelKinematics
 from tacgnn.real.messages import decode_joint_state, decode_tactile
@@ -36,7 +37,9 @@ def controller(policy_file):
 def env_after_steps(controller, policy_file):
     """Envs of the policy's config, driven by the policy until the balls touch the skin (with a
     perception of their own: one with memory keeps a state per env)."""
-    env = BaodingEnv(replace(controller.env_config, num_envs=3, seed=0), perception=load_perception(policy_file))
+    # the nominal hand: the controller is given the true joints, as the env's encoders read them only there
+    env = BaodingEnv(replace(controller.env_config, num_envs=3, seed=0, randomization=RandomizationConfig()),
+                     perception=load_perception(policy_file))
     obs, _ = env.reset(seed=0)
     for _ in range(15):
         obs, *_ = env.step(controller.policy(obs))

@@ -15,6 +15,7 @@ from real_policy import blind_policy, with_ball_velocity
 
 from tacgnn.envs.baoding import BaodingEnv, ordered_balls
 from tacgnn.envs.observation import BALL_COLUMNS, action_to_target, assemble, target_to_action, track_ball_identities
+from tacgnn.envs.randomization import RandomizationConfig
 from tacgnn.learning.policy import load_perception
 from tacgnn.real import BlindController, BlindControllerConfig
 from tacgnn.sim.skin_signal import SkinSignalConfig
@@ -59,9 +60,10 @@ def test_env_and_controller_give_the_same_observations_and_actions(policy_file, 
     cfg = replace(controller.env_config, num_envs=1, seed=5, max_episode_steps=120,
                   # all substeps in one call (the skin-instant hook below); the physics is the same
                   reward=replace(controller.env_config.reward, squeeze_peak=False),
-                  # the controller is fed the contact model's frames: the skin's signal chain is the
-                  # calibration's business (tests/test_skin_signal.py), not this test's
-                  skin_signal=SkinSignalConfig(preset="ideal"))
+                  # the controller is fed the contact model's frames and the true joints: the skin's
+                  # signal chain and the encoders' effects are the calibration's and the hand's business
+                  # (tests/test_skin_signal.py, tests/test_randomization.py), not this test's
+                  skin_signal=SkinSignalConfig(preset="ideal"), randomization=RandomizationConfig())
     env = BaodingEnv(cfg, perception=FlippingPerception(load_perception(policy_file)))  # its own memory, if any
     controller.perception = FlippingPerception(controller.perception)
     frames = []  # every skin frame the env computes, and the joint angles at its instant

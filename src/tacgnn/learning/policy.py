@@ -25,10 +25,11 @@ from tacgnn.perception.checkpoint import stored_config
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
-"""The blind policy the demo and the real-hand controller run: TacGNN perception in the loop."""
+"""The blind policy the demo and the real-hand controller run: a temporal TacGNN in the loop, trained
+on hands drawn as real ones differ and on the real skin (docs/results.md, section 11)."""
 SHIPPED_TEACHER = ASSETS / "baoding_gt_policy.pt"
-"""The ground-truth policy shipped beside it (true ball positions): its teacher fine-tuned 100
-iterations more with a steep penalty on the grip's force tail (docs/results.md, section 1.1)."""
+"""The ground-truth policy shipped beside it (true ball positions), its teacher, trained on the same
+hands (`experiments/real_hand/pipeline.sh`)."""
 
 
 def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], BaodingConfig]:
