@@ -298,3 +298,12 @@ def test_random_state_round_trip_and_older_checkpoints(caplog):
     env.set_rng_state(saved["main"])  # one generator, as saved before per-env streams
     assert "not bit-for-bit" in caplog.text
     assert np.array_equal(env._rng.random(4), draws[1])
+
+
+@pytest.mark.parametrize("key,value", [("success_angle_deg", 1e9), ("spawn_clearance", -1.0),
+                                       ("max_episode_steps", 10**12), ("ball_mass", 1e308), ("ball_radius", 1e308),
+                                       ("control_dt", 1e308), ("hand.torque_limit", 1e-30), ("hand.armature", 1e308),
+                                       ("sim.timestep", 1e-9), ("sim.contact_timeconst", 1e308)])
+def test_values_that_would_hang_or_break_the_simulation_are_refused_naming_the_key(key, value):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        override(BaodingConfig(), {key: value})

@@ -174,16 +174,20 @@ class BaodingConfig:
     def __post_init__(self) -> None:
         check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         check_seed(self.seed)
-        check(self.max_episode_steps >= 1, "max_episode_steps", "must be >= 1")
+        check(1 <= self.max_episode_steps <= 100_000, "max_episode_steps",
+              f"must be in 1..100000 (33 min at 50 Hz), got {self.max_episode_steps}")
+        check(0 < self.control_dt <= 1, "control_dt", f"must be in (0, 1] s, got {self.control_dt}")
         substeps = self.control_dt / self.sim.timestep
         whole = round(substeps) >= 1 and abs(substeps - round(substeps)) < 1e-6
         check(0 < self.control_dt <= 1 and whole, "control_dt",
               f"must be a whole multiple of sim.timestep ({self.sim.timestep} s) in (0, 1] s, got {self.control_dt}")
         steps = self.continuous_seconds / self.control_dt if self.control_dt > 0 else 0.0
-        check(self.continuous_seconds > 0 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",
+        check(0 < self.continuous_seconds <= 3600 and abs(steps - round(steps)) < 1e-6, "continuous_seconds",
               f"must be a positive whole number of control steps (control_dt {self.control_dt} s), "
               f"got {self.continuous_seconds}")
-        check(self.ball_radius > 0, "ball_radius", f"must be positive, got {self.ball_radius}")
+        check(0 < self.ball_radius <= 0.1, "ball_radius", f"must be in (0, 0.1] m (a ball the hand can hold), "
+              f"got {self.ball_radius}")
+        check(self.ball_mass <= 10, "ball_mass", f"must be <= 10 kg, got {self.ball_mass}")
         # MuJoCo refuses a moving body whose mass or inertia is below mjMINVAL (at compile, or
         # silently misbehaves when randomisation sets it later)
         key, lightest = "ball_mass", self.ball_mass
@@ -194,9 +198,10 @@ class BaodingConfig:
         check(sphere_inertia(lightest, self.ball_radius) > mujoco.mjMINVAL, "ball_radius",
               f"{self.ball_radius} m gives a {lightest} kg ball an inertia below MuJoCo's smallest "
               f"({mujoco.mjMINVAL} kg m^2)")
-        check(self.ball_friction > 0, "ball_friction", "must be positive")
+        check(0 < self.ball_friction <= 100, "ball_friction", f"must be in (0, 100], got {self.ball_friction}")
         check(len(self.initial_joint_pos) == NUM_JOINTS, "initial_joint_pos", "needs 16 values")
-        check(self.success_angle_deg > 0, "success_angle_deg", "must be positive")
+        check(0 < self.success_angle_deg <= 36_000, "success_angle_deg",
+              f"must be in (0, 36000] deg (100 turns), got {self.success_angle_deg}")
         check(self.direction in (1, -1), "direction", "must be +1 or -1")
         check(self.ball_order in ("as_simulated", "canonical"), "ball_order",
               f"must be 'as_simulated' or 'canonical', got {self.ball_order!r}")
@@ -205,7 +210,9 @@ class BaodingConfig:
         check(self.hold_steps >= 0, "hold_steps", "must be >= 0")
         check(self.long_hold_steps >= 0, "long_hold_steps", "must be >= 0")
         check(self.fall_height[0] < self.fall_height[1], "fall_height", "needs low < high")
-        check(self.spawn_noise >= 0, "spawn_noise", f"must be >= 0, got {self.spawn_noise}")
+        check(0 <= self.spawn_noise <= 0.05, "spawn_noise", f"must be in [0, 0.05] m, got {self.spawn_noise}")
+        check(0 <= self.spawn_clearance <= 0.02, "spawn_clearance",
+              f"must be in [0, 0.02] m, got {self.spawn_clearance}")
         check(self.joint_noise >= 0, "joint_noise", f"must be >= 0, got {self.joint_noise}")
         check(not self.ball_velocity or self.obs_mode in ("groundtruth", "perceived", "tactile"), "ball_velocity",
               f"shows the velocities of the balls the observation shows: 'groundtruth' or 'perceived' "
