@@ -134,3 +134,23 @@ def test_the_env_reads_the_real_skin_by_default_and_the_ideal_one_when_asked():
 def test_bad_skin_values_name_their_key(key, value):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         override(BaodingConfig(), {key: value})
+
+
+def test_the_compiled_chain_is_the_numpy_chain_to_the_bit():
+    """The env runs the compiled chain; the numpy one (`use_compiled = False`) is its reference:
+    readings, raw values and the skins' states agree exactly, for all envs and for some."""
+    config = replace(SkinSignalConfig(), stuck_fraction=(0.02, 0.02), dead_fraction=(0.05, 0.05))
+    compiled, reference = skin(config, n=6), skin(config, n=6)
+    reference.use_compiled = False
+    g = np.random.default_rng(1)
+    for step in range(12):
+        forces = (g.random((6, T)) * (g.random((6, T)) < 0.05) * 2).astype(np.float32)
+        ids = slice(None) if step % 2 else np.array([1, 4])
+        rows = forces if step % 2 else forces[[1, 4]]
+        rng = np.random.default_rng(step) if step % 3 else None
+        out = compiled(rows, ids, rng)
+        ref = reference(rows, ids, None if rng is None else np.random.default_rng(step))
+        np.testing.assert_array_equal(out, ref)
+        np.testing.assert_array_equal(compiled.last_raw, reference.last_raw)
+    for name in SkinSignal.STATE:
+        np.testing.assert_array_equal(getattr(compiled, name), getattr(reference, name))

@@ -160,6 +160,61 @@ def neighbour_table(layout: SkinLayout, reach: float = 1.5) -> np.ndarray:
     return table
 
 
+def _chain_kernel(forces, rows, neighbours, count, memory, gain, offset, drift, drift_speed, baseline, threshold,
+                  calibration_gain, dead, stuck, noise, advance, crosstalk, alpha, relaxation, saturation,
+                  noise_floor, step, inverse_step, raw, out):  # pragma: no cover (compiled)
+    """`SkinSignal.raw` and `calibrated` as one compiled pass over each env's taxels: the same model
+    and float32 arithmetic, in the same order (crosstalk spread from the pressed taxels only)."""
+    num_taxels = forces.shape[1]
+    one = np.float32(1.0)
+    leak = np.zeros(num_taxels + 1, np.float32)
+    for r in range(forces.shape[0]):
+        e = rows[r]
+        leak[:] = 0.0
+        for t in range(num_taxels):
+            if forces[r, t] != 0 and crosstalk > 0:
+                share = crosstalk * forces[r, t]
+                for k in range(neighbours.shape[1]):
+                    j = neighbours[t, k]
+                    leak[j] += share / count[j]
+        for t in range(num_taxels):
+            load = forces[r, t] + leak[t]
+            m = memory[e, t] + alpha * (load - memory[e, t])
+            memory[e, t] = m
+            y = min(gain[e, t] * ((one - relaxation) * load + relaxation * m), saturation)
+            d = drift[e, t]
+            if advance:
+                d += drift_speed[e, t]
+                drift[e, t] = d
+                y += noise_floor * noise[r, t]
+            v = max(y + offset[e, t] + d, np.float32(0.0))
+            if step > 0:
+                v = np.float32(np.rint(v * inverse_step)) * step
+            if stuck[e, t] > 0:
+                v = baseline[e, t] + stuck[e, t]
+            if dead[e, t]:
+                v = np.float32(0.0)
+            raw[r, t] = v
+            x = max(v - baseline[e, t], np.float32(0.0))
+            out[r, t] = np.float32(0.0) if x < threshold[e, t] or dead[e, t] else x * calibration_gain[e, t]
+
+
+def _compiled_chain():
+    """The compiled chain, or None where numba is missing (the numpy path is used then)."""
+    global _chain_compiled
+    if _chain_compiled is False:
+        try:
+            import numba
+        except ImportError:
+            _chain_compiled = None
+        else:
+            _chain_compiled = numba.njit(cache=True, nogil=True)(_chain_kernel)
+    return _chain_compiled
+
+
+_chain_compiled: Any = False  # False: not compiled yet; None: numba is missing; else the kernel
+
+
 class SkinSignal:
     """One real skin per env: draws it at reset, calibrates it, and turns each frame's ideal forces
     into calibrated readings (see the module docstring). With the 'ideal' preset it passes the
@@ -174,6 +229,7 @@ class SkinSignal:
     Shapes (N envs, T taxels): ``__call__(forces (n, T), ids, rng) -> (n, T)`` float32.
     """
 
+    use_compiled: bool = True  # False: the numpy path (the reference the compiled chain is tested against)
     STATE = ("memory", "drift", "drift_speed", "gain", "offset", "baseline", "threshold", "calibration_gain", "dead",
              "stuck")
 
@@ -230,8 +286,22 @@ class SkinSignal:
         env's skin by one frame; per-frame noise from `rng` (None: no noise, no drift step)."""
         if self.config.is_ideal:
             return forces
-        raw = self.raw(forces, ids, rng)
-        return calibrated(raw, self.baseline[ids], self.threshold[ids], self.calibration_gain[ids], self.dead[ids])
+        kernel = _compiled_chain() if self.use_compiled else None
+        if kernel is None:
+            raw = self.raw(forces, ids, rng)
+            return calibrated(raw, self.baseline[ids], self.threshold[ids], self.calibration_gain[ids], self.dead[ids])
+        c = self.config
+        f = np.ascontiguousarray(forces, np.float32)
+        rows = np.arange(len(self.memory))[ids].astype(np.int64)
+        noise = noise_draws(rng, f.shape) if rng is not None else np.zeros((1, 1), np.float32)
+        raw, out = np.empty_like(f), np.empty_like(f)
+        kernel(f, rows, self.neighbours, self._neighbour_count_padded, self.memory, self.gain, self.offset, self.drift,
+               self.drift_speed, self.baseline, self.threshold, self.calibration_gain, self.dead, self.stuck, noise,
+               rng is not None, np.float32(c.crosstalk), np.float32(self.frame_dt / c.relaxation_time),
+               np.float32(c.relaxation), np.float32(c.saturation), np.float32(c.noise_floor),
+               np.float32(c.quantisation), np.float32(1.0 / c.quantisation if c.quantisation > 0 else 1.0), raw, out)
+        self.last_raw = raw
+        return out
 
     def raw(self, forces: np.ndarray, ids: np.ndarray | slice, rng: np.random.Generator | None) -> np.ndarray:
         """The raw values (n, T) the array reports for envs `ids` (what a driver publishes, before any
