@@ -102,7 +102,7 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
         skin = processor.process_raw(hand.raw_skin(stepped))
         target = controller.step(env.joint_pos[0].copy(), env.joint_vel[0].copy(), skin)
         ticks.append(time.perf_counter() - began)
-        _, _, terminated, truncated, info = env.step(target_to_action(target, low, high)[None])
+        _, _, terminated, truncated, info = hand.step(target_to_action(target, low, high)[None])
         if terminated[0] or truncated[0]:
             wins += bool(info["success"][0])
             done += 1

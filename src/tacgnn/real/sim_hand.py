@@ -149,6 +149,16 @@ class SimHand:
         self.fields = [fields[p.name] for p in self.layout.patches]
         self.results: list[dict] = []
 
+    def step(self, action: np.ndarray):
+        """`env.step` of one hand with one skin: a real hand keeps its skin (offsets, gains, dead
+        taxels, drift) from episode to episode, where the env draws a new one at each reset; so the
+        skin as it was carries over an episode's end, and one calibration serves the session."""
+        skin = self.env.skin_signal.state_dict()
+        out = self.env.step(action)
+        if out[2][0] or out[3][0]:
+            self.env.skin_signal.load_state_dict(skin)
+        return out
+
     def raw_skin(self, stepped: bool) -> np.ndarray:
         """(T,) the driver's raw values of the skin now: of the frame the env's step just took
         (`stepped`), or a new frame of the hand as it stands."""
@@ -260,7 +270,7 @@ class SimHand:
                 else:
                     lags["none"] = lags.get("none", 0) + 1
                 command["target"] = None
-                obs, _, terminated, truncated, info = env.step(hold[None])
+                obs, _, terminated, truncated, info = self.step(hold[None])
                 steps += 1
                 if not (terminated[0] or truncated[0]):
                     if time.monotonic() > end:
