@@ -34,6 +34,7 @@ from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.real.bag import BagError, read_bag
 from tacgnn.real.messages import decode_tactile
 from tacgnn.real.ros_config import RosConfig
+from tacgnn.sim.skin_signal import calibrated
 
 
 class CalibrationError(ValueError):
@@ -189,11 +190,7 @@ class SkinProcessor:
         if raw.shape[-1:] != (self.layout.num_taxels,):
             raise ValueError(f"raw skin must end in ({self.layout.num_taxels},), got {raw.shape}")
         c = self.calibration
-        x = np.maximum(raw[..., c.order] - c.baseline, 0.0)
-        x[x < c.threshold] = 0.0
-        x *= c.gain
-        x[..., c.dead] = 0.0
-        return x.astype(np.float32)
+        return calibrated(raw[..., c.order], c.baseline, c.threshold, c.gain, c.dead)  # the simulated skin's too
 
     def __call__(self, patches: Mapping[str, np.ndarray] | Sequence[np.ndarray]) -> np.ndarray:
         """(T,) float32 readings of one frame given as per-patch arrays."""
