@@ -35,6 +35,7 @@ import numpy as np
 
 from tacgnn.config import check
 from tacgnn.hand.skin_layout import SkinLayout
+from tacgnn.sim.tactile import LazyKernel
 
 Range = tuple[float, float]
 
@@ -199,20 +200,7 @@ def _chain_kernel(forces, rows, neighbours, count, memory, gain, offset, drift, 
             out[r, t] = np.float32(0.0) if x < threshold[e, t] or dead[e, t] else x * calibration_gain[e, t]
 
 
-def _compiled_chain():
-    """The compiled chain, or None where numba is missing (the numpy path is used then)."""
-    global _chain_compiled
-    if _chain_compiled is False:
-        try:
-            import numba
-        except ImportError:
-            _chain_compiled = None
-        else:
-            _chain_compiled = numba.njit(cache=True, nogil=True)(_chain_kernel)
-    return _chain_compiled
-
-
-_chain_compiled: Any = False  # False: not compiled yet; None: numba is missing; else the kernel
+_chain = LazyKernel(_chain_kernel)
 
 
 class SkinSignal:
@@ -286,7 +274,7 @@ class SkinSignal:
         env's skin by one frame; per-frame noise from `rng` (None: no noise, no drift step)."""
         if self.config.is_ideal:
             return forces
-        kernel = _compiled_chain() if self.use_compiled else None
+        kernel = _chain.get() if self.use_compiled else None
         if kernel is None:
             raw = self.raw(forces, ids, rng)
             return calibrated(raw, self.baseline[ids], self.threshold[ids], self.calibration_gain[ids], self.dead[ids])

@@ -264,20 +264,26 @@ def _press_kernel(out, sensordata, xpos, xmat, force_idx, patch_of_slot, body_id
             out[i] = v
 
 
-def _compiled_press():
-    """The compiled kernel, or None where numba is missing (the numpy path is used then)."""
-    global _press_compiled
-    if _press_compiled is False:
-        try:
-            import numba
-        except ImportError:
-            _press_compiled = None
-        else:
-            _press_compiled = numba.njit(cache=True, nogil=True)(_press_kernel)
-    return _press_compiled
+class LazyKernel:
+    """`fn` compiled by numba at its first use (cached on disk), or None where numba is missing: the
+    caller then takes its numpy path, which stays the reference the kernel is tested against."""
+
+    def __init__(self, fn: Any):
+        self.fn = fn
+        self._kernel: Any = False  # False: not compiled yet; None: numba is missing
+
+    def get(self) -> Any:
+        if self._kernel is False:
+            try:
+                import numba
+            except ImportError:
+                self._kernel = None
+            else:
+                self._kernel = numba.njit(cache=True, nogil=True)(self.fn)
+        return self._kernel
 
 
-_press_compiled: Any = False  # False: not compiled yet; None: numba is missing; else the kernel
+_press = LazyKernel(_press_kernel)
 
 
 class TactileModel:
@@ -357,7 +363,7 @@ class TactileModel:
         out = np.zeros(n * self.num_taxels, np.float32)
         noise = self.layout.noise if rng is not None else 0.0
         seed = draw_step_seed(rng) if rng is not None and noise > 0 else np.uint64(0)
-        kernel = _compiled_press() if self.use_compiled else None
+        kernel = _press.get() if self.use_compiled else None
         if kernel is not None:
             g = self._grid
             kernel(out, np.ascontiguousarray(sensordata, np.float64), np.ascontiguousarray(xpos, np.float64),
