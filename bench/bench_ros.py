@@ -70,9 +70,7 @@ def make_calibration(folder: Path, policy: str) -> Path:
 
     env_config = load_policy(policy)[1]
     hand = SimHand(env_config, SimHandConfig(), RosConfig())
-    for b, x in zip(hand.env.ball_qpos_adr, (0.0, 0.3)):
-        hand.env.sim.qpos[0, b:b + 3] = (x, 0.0, -1.0)
-    hand.env.sim.forward()
+    hand.balls_away()
     rest = np.stack([hand.raw_skin(stepped=False) for _ in range(50)])
     return calibrate(rest, env_config.skin).save(folder / "calibration.npz")
 

@@ -37,6 +37,8 @@ PER_JOINT = ("stiffness_scale", "damping_scale", "torque_limit_scale", "joint_fr
              "backlash", "joint_bias")
 PER_ENV = ("ball_mass", "friction_scale", "gravity", *LATENCIES)
 RANGES = (*PER_ENV, *PER_JOINT)
+#: Uniforms each range takes per reset, in draw order: one per ball, per env or per joint.
+WIDTHS = {"ball_mass": 2, **{name: 1 for name in PER_ENV[1:]}, **{name: NUM_JOINTS for name in PER_JOINT}}
 MAX_FORCE_FACTOR = 1e3  # no factor on a physical value beyond this: the simulation would diverge
 
 
@@ -118,23 +120,22 @@ class RandomizationConfig:
         return replace(base, **changes)
 
     def draws_per_reset(self) -> int:
-        return 2 + 1 + 1 + len(LATENCIES) + len(PER_JOINT) * NUM_JOINTS
+        return sum(WIDTHS.values())
 
 
 def draw_ranges(cfg: RandomizationConfig, u: np.ndarray) -> dict[str, np.ndarray]:
     """Each range's values for uniforms `u` (n, draws_per_reset) in [0, 1): ball_mass (n, 2), the
     other per-env values (n,), the per-joint ones (n, 16)."""
-    widths = {"ball_mass": 2, **{name: 1 for name in PER_ENV[1:]}, **{name: NUM_JOINTS for name in PER_JOINT}}
     out, start = {}, 0
     for name in RANGES:
         lo, hi = getattr(cfg, name)
-        x = u[:, start:start + widths[name]]
-        start += widths[name]
+        x = u[:, start:start + WIDTHS[name]]
+        start += WIDTHS[name]
         if name in LOG_UNIFORM:
             value = np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x)
         else:
             value = lo + (hi - lo) * x
-        out[name] = value[:, 0] if widths[name] == 1 else value
+        out[name] = value[:, 0] if WIDTHS[name] == 1 else value
     return out
 
 

@@ -159,6 +159,13 @@ class SimHand:
             self.env.skin_signal.load_state_dict(skin)
         return out
 
+    def balls_away(self) -> None:
+        """Put the balls far from the hand: the skin at rest, as a calibration records it."""
+        env = self.env
+        for b, x in zip(env.ball_qpos_adr, (0.0, 0.3)):
+            env.sim.qpos[0, b:b + 3] = (x, 0.0, -1.0)
+        env.sim.forward()
+
     def raw_skin(self, stepped: bool) -> np.ndarray:
         """(T,) the driver's raw values of the skin now: of the frame the env's step just took
         (`stepped`), or a new frame of the hand as it stands."""
@@ -216,10 +223,8 @@ class SimHand:
                 send(pub_joints, node.joint_state(np.full_like(q, np.nan), stamp=stamp))
 
         obs, _ = env.reset(seed=cfg.seed)
-        if cfg.rest_steps:  # the balls far away: a skin at rest
-            for b, x in zip(env.ball_qpos_adr, (0.0, 0.3)):
-                env.sim.qpos[0, b:b + 3] = (x, 0.0, -1.0)
-            env.sim.forward()
+        if cfg.rest_steps:
+            self.balls_away()
         episode = 0
         hold = env.last_action[0].copy()
         next_time = time.monotonic()
