@@ -114,9 +114,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.skin_signal = SkinSignal(cfg.skin_signal, cfg.skin, n, cfg.control_dt)
         self._nominal_torque_limit = np.asarray(cfg.hand.joint_torque_limit())  # the effort cost's unit
         late = self.hand_io.skin_frames if self._obs_uses_skin and cfg.randomization.enabled else 0
-        self._skin_history = None if late == 0 else (  # newest first: what a late frame shows
-            np.zeros((n, late + 1, self.tactile.num_taxels), np.float32),
-            np.zeros((n, late + 1, self.tactile.num_taxels, 3), np.float32))
+        self._skin_history = {} if late == 0 else {  # newest first: what a late frame shows
+            "frames": np.zeros((n, late + 1, self.tactile.num_taxels), np.float32),
+            "positions": np.zeros((n, late + 1, self.tactile.num_taxels, 3), np.float32)}
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -225,8 +225,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                 "buffers": {name: getattr(self, name).copy() for name in self.EPISODE_STATE},
                 "rng": self.rng_state(), "hand_io": self.hand_io.state_dict(),
                 "skin_signal": self.skin_signal.state_dict(),
-                "skin_history": {} if self._skin_history is None else
-                dict(zip(("frames", "positions"), (a.copy() for a in self._skin_history)))}
+                "skin_history": {name: a.copy() for name, a in self._skin_history.items()}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what `state_dict` saved, into an env built from the same config.
@@ -255,9 +254,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.set_rng_state(state["rng"])
         self.hand_io.load_state_dict(state["hand_io"])
         self.skin_signal.load_state_dict(state["skin_signal"])
-        if self._skin_history is not None:
-            for mine, name in zip(self._skin_history, ("frames", "positions")):
-                mine[...] = state["skin_history"][name]
+        for name, mine in self._skin_history.items():
+            mine[...] = state["skin_history"][name]
 
     # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -448,10 +446,9 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                    fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:
         """The skin frame the policy sees: the newest that has arrived, `hand_io.skin_delay` frames
         old (skin latency); `fresh` (after a reset) fills the envs' history with this frame."""
-        history = self._skin_history
-        if history is None or tactile is None or taxel_pos is None:
+        if not self._skin_history or tactile is None or taxel_pos is None:
             return tactile, taxel_pos
-        frames, positions = history
+        frames, positions = self._skin_history["frames"], self._skin_history["positions"]
         tactile, taxel_pos = self.skin_to_host(tactile), self.skin_to_host(taxel_pos)
         if fresh:
             frames[ids], positions[ids] = tactile[:, None], taxel_pos[:, None]
