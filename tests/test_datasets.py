@@ -1,5 +1,6 @@
 """Datasets: schema, atomic shards, resume after kill -9 equals an uninterrupted run, corruption is caught."""
 
+import dataclasses
 import json
 import os
 import signal
@@ -10,8 +11,9 @@ import time
 import numpy as np
 import pytest
 
+from tacgnn.config import ConfigError
 from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
-from tacgnn.datasets.store import DatasetError, Field, ShardedWriter, load
+from tacgnn.datasets.store import DatasetError, Field, ShardedWriter, load, read_manifest
 
 SMALL = BaodingDataConfig(samples=600, shard_size=200, num_envs=16)
 
@@ -303,3 +305,28 @@ def test_a_policy_drives_the_recording_on_the_observation_it_was_trained_on():
         np.testing.assert_allclose(shown, obs, atol=1e-6)
         obs = truth.step(np.tanh(obs @ weights))[0]
     assert np.abs(np.stack(seen)[1:, :, 38:44]).max() > 0  # the velocities are shown, not zeros
+
+
+def test_random_motion_wanders_smoothly_around_the_initial_pose():
+    from tacgnn.envs.scripted import RandomMotion
+
+    base = np.linspace(-0.5, 0.5, 16)
+    motion = RandomMotion(base, num_envs=256, seed=0, amplitude=0.15, correlation_steps=20.0)
+    path = np.stack([motion() for _ in range(400)])  # (steps, envs, joints)
+    offset = path - base
+    assert abs(offset.mean()) < 0.01 and offset.std() == pytest.approx(0.15, rel=0.05)
+    # neighbouring steps nearly agree; 20 steps apart they share about 1/e
+    lag1 = np.corrcoef(offset[:-1].ravel(), offset[1:].ravel())[0, 1]
+    lag20 = np.corrcoef(offset[:-20].ravel(), offset[20:].ravel())[0, 1]
+    assert lag1 > 0.9 and lag20 == pytest.approx(np.exp(-1), abs=0.05)
+    assert np.array_equal(RandomMotion(base, 4, seed=1)(), RandomMotion(base, 4, seed=1)())
+
+
+def test_random_motion_records_balls_on_the_skin(tmp_path):
+    cfg = dataclasses.replace(SMALL, scripted="random")
+    generate(cfg, tmp_path / "ds")
+    data = load(tmp_path / "ds", expect={"num_taxels": 653})
+    assert ((data["tactile"] > 0).sum(1) > 0).mean() > 0.9
+    assert read_manifest(tmp_path / "ds")["metadata"]["controller"] == "RandomMotion"
+    with pytest.raises(ConfigError, match="scripted"):
+        dataclasses.replace(SMALL, scripted="spin")

@@ -128,3 +128,45 @@ def test_extra_training_episodes_join_training_and_leave_the_test_episodes(tmp_p
                   shard_size=40).generate_missing(lambda i: fewer)
     with pytest.raises(DatasetError, match=r"fewer \(extra_train\): has 95 taxels"):
         train_sequence(config(epochs=1, extra_train=(str(tmp_path / "fewer"),)), dataset, tmp_path / "bad", log=quiet)
+
+
+def test_validation_picks_the_epoch_and_the_test_split_is_scored_once_with_it(tmp_path, dataset):
+    import json
+
+    logs: list[str] = []
+    result = train_sequence(config(epochs=3, val_fraction=0.25), dataset, tmp_path / "v", log=logs.append)
+    history = json.loads((tmp_path / "v" / "history.json").read_text())
+    # every epoch is scored on validation only; the test figures appear once, in the result
+    assert all("val/position_rmse_cm" in row and not any(k.startswith("test/") for k in row) for row in history)
+    best = min(history, key=lambda row: row["val/position_rmse_cm"])["epoch"]
+    assert result["epoch"] == best and json.loads((tmp_path / "v" / "test.json").read_text()) == result
+    chosen = torch.load(tmp_path / "v" / "best.pt", weights_only=True)
+    assert chosen["epoch"] == best
+    # the test split is the one without validation: the same frames, so the chosen model's figure is its own
+    assert evaluate_sequence(tmp_path / "v" / "best.pt", dataset)["position_rmse_cm"] == \
+        pytest.approx(result["test/position_rmse_cm"])
+    from tacgnn.perception.evaluation import load_data, split_data
+
+    data = load_data(config(), dataset, 0)
+    with_val = split_data(config(val_fraction=0.25), data)
+    without = split_data(config(), data)
+    assert torch.equal(with_val[2].episode, without[2].episode) and without[1] is None
+    train_ids, val_ids = set(with_val[0].episode.tolist()), set(with_val[1].episode.tolist())
+    assert not train_ids & val_ids and train_ids | val_ids == set(without[0].episode.tolist())
+
+
+def test_mixed_datasets_share_every_split(tmp_path, dataset):
+    from tacgnn.perception.evaluation import load_data, split_data
+
+    other = write_dataset(tmp_path / "other", episodes(12, 20, seed=5))  # the same ids: joined, they must differ
+    cfg = config(val_fraction=0.25, mix=(str(other),))
+    data = load_data(cfg, dataset, 0)
+    assert len(data) == 480 and len(data.episodes()) == 24
+    parts = split_data(cfg, data)
+    # each split holds episodes of both datasets (ids above the first dataset's come from the second)
+    first = set(load_data(config(), dataset, 0).episode.tolist())
+    for part in parts:
+        ids = set(part.episode.tolist())
+        assert ids & first and ids - first
+    with pytest.raises(Exception, match="needs split=episode"):
+        PerceptionTrainConfig(mix=(str(other),))

@@ -27,7 +27,10 @@ def cmd_make_dataset(args) -> int:
             raise ConfigError("--object goes with 'make-dataset grasp'")
         # the recording env: BaodingConfig keys, --envs; --seed is the dataset's (shard i from seed, i)
         env = override(baoding_config(argparse.Namespace(**{**vars(args), "seed": None})), {"obs_mode": "tactile"})
-        given = {"settle_steps": args.settle_steps, "keep_every": args.keep_every, "num_envs": args.envs}
+        given = {"settle_steps": args.settle_steps, "keep_every": args.keep_every, "num_envs": args.envs,
+                 "scripted": args.scripted}
+        if args.policy and args.scripted:
+            raise ConfigError("--scripted names the controller used without --policy; give one of them")
         cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
                                              env=env, policy_checkpoint=args.policy or "",
                                              **{k: v for k, v in given.items() if v is not None})
@@ -35,8 +38,9 @@ def cmd_make_dataset(args) -> int:
         check_writable(args.out, "dataset folder")
         baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
     else:
-        for flag, value in (("--policy", args.policy), ("--settle-steps", args.settle_steps),
-                            ("--keep-every", args.keep_every), ("--envs", args.envs)):
+        for flag, value in (("--policy", args.policy), ("--scripted", args.scripted),
+                            ("--settle-steps", args.settle_steps), ("--keep-every", args.keep_every),
+                            ("--envs", args.envs)):
             if value is not None:
                 raise ConfigError(f"{flag} goes with 'make-dataset baoding' (grasps take GraspConfig keys: --set)")
         grasp_cfg = grasp_data.GraspDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
@@ -134,7 +138,9 @@ def register(sub) -> None:
                    help="grasp: the object (default: cube); --config/--set take GraspConfig keys for grasps, "
                         "e.g. --set can_face=narrow")
     p.add_argument("--policy", help="baoding: a ground-truth PPO checkpoint drives the balls "
-                                    "(default: the scripted finger wave)")
+                                    "(default: the --scripted controller)")
+    p.add_argument("--scripted", choices=["wave", "random"], help="baoding, without --policy: the finger wave or "
+                   "smooth random motion of every joint (default: wave)")
     p.add_argument("--settle-steps", type=count(0), help="baoding: skip this many first steps of each episode "
                    "(0 keeps the dropping balls; default: 5)")
     p.add_argument("--keep-every", type=count(1), help="baoding: record every k-th step of each env; 1 keeps "

@@ -7,9 +7,9 @@ same to the skin, so a model cannot know which is which; training uses a
 permutation-invariant loss (`tacgnn.perception.objectives`), and the order stored here is
 only the simulator's.
 
-Samples come from rollouts of a controller that keeps the balls moving (the scripted
-`FingerWave` now, a trained policy later). Frames of the first `settle_steps` steps of
-an episode (balls still dropping from the spawn) and the last frame of an episode that
+Samples come from rollouts of a controller that keeps the balls moving (a trained
+ground-truth policy, or a scripted controller: `FingerWave`, `RandomMotion`). Frames of the first
+`settle_steps` steps of an episode (balls still dropping from the spawn) and the last frame of an episode that
 ended (a ball falling away) are left out; with `min_episode_steps` so are the episodes that
 end before that step.
 
@@ -25,13 +25,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from tacgnn.config import ConfigError, check, check_seed, to_dict
 from tacgnn.datasets.store import Field, ShardedWriter
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
-from tacgnn.envs.scripted import FingerWave
+from tacgnn.envs.scripted import FingerWave, RandomMotion
+
+SCRIPTED = {"wave": FingerWave, "random": RandomMotion}
 
 
 @dataclass(frozen=True)
@@ -45,7 +48,9 @@ class BaodingDataConfig:
     """Record every k-th step of each env (consecutive frames are nearly identical); 1 keeps every
     frame, which sequence models need."""
     policy_checkpoint: str = ""
-    """A ground-truth PPO checkpoint to drive the balls ('' = the scripted finger wave)."""
+    """A ground-truth PPO checkpoint to drive the balls ('' = the `scripted` controller)."""
+    scripted: Literal["wave", "random"] = "wave"
+    """Without a policy: the finger wave (`FingerWave`) or smooth random joint motion (`RandomMotion`)."""
     action_noise: float = 0.1
     """Gaussian noise (action units) on the policy's actions, for more varied contacts."""
     min_episode_steps: int = 0
@@ -60,6 +65,7 @@ class BaodingDataConfig:
               f"must be a positive multiple of shard_size ({self.shard_size}), got {self.samples}")
         check(1 <= self.num_envs <= 65_536, "num_envs", f"must be in 1..65536, got {self.num_envs}")
         check(self.keep_every >= 1, "keep_every", "must be >= 1")
+        check(self.scripted in SCRIPTED, "scripted", f"must be one of {list(SCRIPTED)}, got {self.scripted!r}")
         check(self.settle_steps >= 0, "settle_steps", f"must be >= 0, got {self.settle_steps}")
         check(self.action_noise >= 0, "action_noise", f"must be >= 0, got {self.action_noise}")
         check(self.min_episode_steps >= 0, "min_episode_steps", f"must be >= 0, got {self.min_episode_steps}")
@@ -94,7 +100,7 @@ def metadata(cfg: BaodingDataConfig) -> dict:
     from tacgnn import __version__
 
     return {"kind": "baoding", "num_taxels": cfg.env.skin.num_taxels, "seed": cfg.seed,
-            "skin": to_dict(cfg.env.skin), "controller": cfg.policy_checkpoint or "finger_wave",
+            "skin": to_dict(cfg.env.skin), "controller": cfg.policy_checkpoint or SCRIPTED[cfg.scripted].__name__,
             "code_version": __version__,
             "config": to_dict(cfg)}
 
@@ -114,7 +120,7 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
     """Roll out until one shard's worth of samples is collected; deterministic in (seed, index).
 
     The balls are driven by `controller`, else by `policy` (the ground-truth policy named by
-    `cfg.policy_checkpoint`, loaded by the caller), else by the scripted finger wave.
+    `cfg.policy_checkpoint`, loaded by the caller), else by the `scripted` controller.
     """
     seed = shard_seed(cfg, index)
     env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed))
@@ -124,7 +130,7 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
             raise ConfigError(f"policy_checkpoint {cfg.policy_checkpoint}: "
                               "the caller must load it and pass it as `policy`")
         controller = policy_controller(policy, cfg.action_noise) if policy is not None else \
-            (lambda e, s: FingerWave(e.last_action[0], cfg.num_envs, seed=s))
+            (lambda e, s: SCRIPTED[cfg.scripted](e.last_action[0], cfg.num_envs, seed=s))
     act = controller(env, seed)
     out: dict[str, list] = {k: [] for k in schema(env.tactile.num_taxels)}
     held = EpisodeFilter(cfg.num_envs, cfg.min_episode_steps)

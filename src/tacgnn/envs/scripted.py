@@ -3,7 +3,9 @@
 `FingerWave` curls the fingers in a travelling wave (index, middle, ring out of phase),
 which pushes the balls around the palm. Each env gets its own random phase, speed
 and amplitude, so a batch produces varied contacts. It is open loop: it reads no
-observation, only the step counter.
+observation, only the step counter. `RandomMotion` moves every joint along its own smooth
+random path around the initial pose: contacts no trained or scripted gait makes, for
+perception data that covers what a hand may do.
 """
 
 from __future__ import annotations
@@ -41,3 +43,28 @@ class FingerWave:
         angle = self.omega * self.t + self.phase + self.sign * finger_lag[None, :]
         self.t += 1
         return np.clip(self.base + self.amplitude * flexing * np.sin(angle), -1.0, 1.0)
+
+
+class RandomMotion:
+    """Open-loop smooth random motion: each joint's action follows its own Ornstein-Uhlenbeck path
+    around the initial pose (mean-reverting, so the hand does not drift to a joint limit).
+
+    Args:
+        initial_action: (16,) action of the initial pose.
+        num_envs: batch size.
+        seed: draws the paths.
+        amplitude: stationary standard deviation of each joint's action (action units).
+        correlation_steps: control steps over which a path forgets its value (1/e).
+    """
+
+    def __init__(self, initial_action: np.ndarray, num_envs: int, seed: int = 0,
+                 amplitude: float = 0.15, correlation_steps: float = 20.0):
+        self.rng = np.random.default_rng(seed)
+        self.base = np.asarray(initial_action, dtype=np.float64)
+        self.keep = np.exp(-1.0 / correlation_steps)
+        self.step_std = amplitude * np.sqrt(1.0 - self.keep ** 2)
+        self.offset = amplitude * self.rng.standard_normal((num_envs, NUM_JOINTS))
+
+    def __call__(self, obs=None) -> np.ndarray:
+        self.offset = self.keep * self.offset + self.step_std * self.rng.standard_normal(self.offset.shape)
+        return np.clip(self.base + self.offset, -1.0, 1.0)

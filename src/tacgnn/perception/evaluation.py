@@ -23,6 +23,7 @@ from tacgnn.perception.objectives import Objective
 from tacgnn.perception.sequences import (
     SequenceData,
     as_sequence,
+    join_episodes,
     load_sequences,
     split_by_episode,
     steps_since_touch,
@@ -134,18 +135,30 @@ def model_metrics(model: nn.Module, cfg: PerceptionTrainConfig, data: SequenceDa
 
 
 def load_data(cfg: PerceptionTrainConfig, dataset: str | Path, max_samples: int) -> SequenceData:
-    """A dataset as the config's split reads it: frames of any task, or Baoding episodes."""
+    """A dataset as the config's split reads it: frames of any task, or Baoding episodes (with the
+    episodes of the config's `mix` datasets joined after them)."""
     if cfg.split == "episode":
-        return load_sequences(dataset, max_samples)
+        main = load_sequences(dataset, max_samples)
+        parts = [main, *(load_sequences(path) for path in cfg.mix)]
+        for path, part in zip(cfg.mix, parts[1:], strict=True):
+            if part.frames.readings.shape[1] != main.frames.readings.shape[1]:
+                raise DatasetError(f"{path} (mix): has {part.frames.readings.shape[1]} taxels, "
+                                   f"{dataset} {main.frames.readings.shape[1]}")
+        return join_episodes(parts) if cfg.mix else main
     joints = cfg.model.joint_inputs > 0
     return as_sequence(load_tactile(dataset, cfg.task, max_samples, joints=joints))
 
 
-def split_data(cfg: PerceptionTrainConfig, data: SequenceData) -> tuple[SequenceData, SequenceData]:
-    """(train, test) by the config's split and seed."""
-    if cfg.split == "episode":
-        return split_by_episode(data, cfg.train_fraction, cfg.seed)
-    return split(data, cfg.train_fraction, cfg.seed)
+def split_data(cfg: PerceptionTrainConfig,
+               data: SequenceData) -> tuple[SequenceData, SequenceData | None, SequenceData]:
+    """(train, validation or None, test) by the config's split and seed. The test split does not
+    depend on `val_fraction`: validation is drawn from the training side."""
+    divide = split_by_episode if cfg.split == "episode" else split
+    rest, test = divide(data, cfg.train_fraction, cfg.seed)
+    if cfg.val_fraction == 0:
+        return rest, None, test
+    train, val = divide(rest, 1 - cfg.val_fraction, cfg.seed + 1)
+    return train, val, test
 
 
 def test_data(cfg: PerceptionTrainConfig, dataset: str | Path, whole: bool = False) -> SequenceData:
@@ -154,7 +167,7 @@ def test_data(cfg: PerceptionTrainConfig, dataset: str | Path, whole: bool = Fal
     if data.frames.readings.shape[1] != cfg.model.num_taxels:
         raise DatasetError(f"{dataset}: has {data.frames.readings.shape[1]} taxels, the model was trained on "
                            f"{cfg.model.num_taxels}")
-    return data if whole else split_data(cfg, data)[1]
+    return data if whole else split_data(cfg, data)[2]
 
 
 def patch_taxels(skin: SkinLayout | dict, patch: str) -> Tensor:

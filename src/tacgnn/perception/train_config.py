@@ -66,6 +66,13 @@ class PerceptionTrainConfig:
     train_fraction: float = 0.8
     max_samples: int = 0
     """Use only the first this-many frames (0: all); by episode, whole episodes up to that many."""
+    val_fraction: float = 0.0
+    """Share of the training side (episodes or frames) held out for validation (0: none). With it,
+    every epoch is scored on validation, ``best.pt`` keeps the best epoch, and the test split (the
+    same as without validation) is scored once, at the end, with that model (``test.json``)."""
+    mix: tuple[str, ...] = ()
+    """split=episode: datasets whose episodes join the main dataset's before the split, so that
+    training, validation and test all hold each controller's episodes."""
     extra_train: tuple[str, ...] = ()
     """split=episode: datasets whose episodes all go to training, added after the split: the test
     episodes stay those of the main dataset (e.g. more data of rare long holds)."""
@@ -111,9 +118,11 @@ class PerceptionTrainConfig:
         check(self.window >= 1, "window", f"must be >= 1, got {self.window}")
         check(self.burn_in >= 0, "burn_in", f"must be >= 0, got {self.burn_in}")
         check(self.eval_from_step >= 0, "eval_from_step", f"must be >= 0, got {self.eval_from_step}")
-        check(all(isinstance(p, str) and p for p in self.extra_train), "extra_train",
-              f"must be a list of dataset folders, got {self.extra_train!r}")
-        check(not self.extra_train or self.split == "episode", "extra_train", "adds episodes: it needs split=episode")
+        check(0 <= self.val_fraction < 1, "val_fraction", f"must be in [0, 1), got {self.val_fraction}")
+        for key in ("mix", "extra_train"):
+            check(all(isinstance(p, str) and p for p in getattr(self, key)), key,
+                  f"must be a list of dataset folders, got {getattr(self, key)!r}")
+            check(not getattr(self, key) or self.split == "episode", key, "adds episodes: it needs split=episode")
         check(self.split == "frame" or self.task == "baoding", "split",
               f"by episode reads Baoding sequences, not task {self.task!r}")
         if self.temporal:

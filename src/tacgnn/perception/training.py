@@ -158,7 +158,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
     data = load_data(cfg, dataset, cfg.max_samples)
     num_taxels = data.frames.readings.shape[1]
     cfg = with_taxels(cfg, num_taxels)
-    train_set, test_set = split_data(cfg, data)
+    train_set, val_set, test_set = split_data(cfg, data)
     extra = [load_extra(path, num_taxels) for path in cfg.extra_train]
     if extra:
         train_set = join_episodes([train_set, *extra])
@@ -212,21 +212,47 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
             total += loss.item()
         seconds = time.perf_counter() - begin
         train_m = model_metrics(model, cfg, train_set) if cfg.split == "frame" else {}
-        test_m = model_metrics(model, cfg, test_set)
+        # with a validation split the test split waits for the end; without one it is scored every epoch
+        held = ("val", model_metrics(model, cfg, val_set)) if val_set is not None else \
+            ("test", model_metrics(model, cfg, test_set))
         row = {"epoch": epoch, "loss": total / steps_per_epoch, "seconds": seconds, "lr": optim.param_groups[0]["lr"],
-               **{f"train/{k}": v for k, v in train_m.items()}, **{f"test/{k}": v for k, v in test_m.items()}}
+               **{f"train/{k}": v for k, v in train_m.items()}, **{f"{held[0]}/{k}": v for k, v in held[1].items()}}
         history.append(row)
         for key, value in row.items():
             if key != "epoch":
                 writer.add_scalar(key if "/" in key else f"train/{key}", value, epoch)
         log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
-        save_checkpoint(ckpt_path, {
+        payload = {
             "config": to_dict(cfg), "epoch": epoch, "model": model.state_dict(), "optimizer": optim.state_dict(),
             "history": history, "rest_positions_cm": rest,
             "dataset": {"path": str(dataset), "num_taxels": num_taxels, "kind": meta.get("kind"),
                         "object": meta.get("object"), "frames": len(data), "split": cfg.split,
                         "extra_train_frames": sum(len(e) for e in extra)},
-        })
+        }
+        if val_set is not None and epoch == best_epoch(history):
+            save_checkpoint(run_dir / "best.pt", payload)  # before checkpoint.pt: a resume never misses it
+        save_checkpoint(ckpt_path, payload)
         atomic_write_text(run_dir / "history.json", json.dumps(history, indent=1))
     writer.close()
-    return history[-1]
+    if val_set is None:
+        return history[-1]
+    return score_best(run_dir, cfg, model, test_set)
+
+
+#: The validation figure that picks the best epoch, per task.
+SELECT_BY = "val/position_rmse_cm"
+
+
+def best_epoch(history: list[dict]) -> int:
+    """The epoch with the lowest validation error (the first of equals)."""
+    return min(history, key=lambda row: (row[SELECT_BY], row["epoch"]))["epoch"]
+
+
+def score_best(run_dir: Path, cfg: PerceptionTrainConfig, model: nn.Module, test_set: SequenceData) -> dict:
+    """Score the validation-chosen epoch (``best.pt``) on the test split, once; write ``test.json``."""
+    best = load_checkpoint(run_dir / "best.pt")
+    model.load_state_dict(best["model"])
+    result = {"epoch": best["epoch"], SELECT_BY: best["history"][-1][SELECT_BY],
+              **{f"test/{k}": v for k, v in model_metrics(model, cfg, test_set).items()}}
+    atomic_write_text(run_dir / "test.json", json.dumps(result, indent=1))
+    return result
