@@ -143,3 +143,29 @@ def test_action_rate_and_effort_costs_known_answer():
     terms = reward_terms(cfg, np.zeros(2), np.zeros((2, 16)), change, effort, none, none, none, np.zeros((2, 8)))
     np.testing.assert_allclose(terms["action_rate"], [-0.16, 0.0])
     np.testing.assert_allclose(terms["effort"], [0.0, -0.3])
+
+
+@pytest.mark.parametrize("frames_late", [1, 2])
+def test_a_late_skin_shows_the_frame_of_that_many_steps_ago(frames_late):
+    """Skin latency delays the skin frame the policy sees, nothing else: the late env's frame of step t
+    is the on-time env's frame of step t - k (the reset's frame before that), even after a resume."""
+    cfg = replace(CFG, num_envs=4, tactile=True, obs_mode="tactile")
+    late = RandomizationConfig.nominal(cfg.ball_mass, skin_latency=(0.02 * frames_late,) * 2)
+    actions = np.random.default_rng(2).uniform(-0.3, 0.3, (10, 4, 16))
+    seen = {}
+    for name, r in (("on_time", RandomizationConfig.nominal(cfg.ball_mass)), ("late", late)):
+        env = BaodingEnv(replace(cfg, randomization=r))
+        obs, _ = env.reset(seed=3)
+        frames = [obs["tactile"].copy()]
+        for t, a in enumerate(actions):
+            if name == "late" and t == 5:  # a resume in the middle keeps the late frames
+                state = env.state_dict()
+                env = BaodingEnv(replace(cfg, randomization=r))
+                env.load_state_dict(state)
+            obs, _, terminated, truncated, _ = env.step(a)
+            assert not (terminated | truncated).any()
+            frames.append(obs["tactile"].copy())
+        seen[name] = np.array(frames)
+    assert seen["on_time"][1:].any()
+    expected = np.concatenate([np.repeat(seen["on_time"][:1], frames_late, 0), seen["on_time"][:-frames_late]])
+    np.testing.assert_array_equal(seen["late"], expected)

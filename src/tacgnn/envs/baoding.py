@@ -114,9 +114,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.skin_signal = SkinSignal(cfg.skin_signal, cfg.skin, n, cfg.control_dt)
         self._nominal_torque_limit = np.asarray(cfg.hand.joint_torque_limit())  # the effort cost's unit
         late = self.hand_io.skin_frames if self._obs_uses_skin and cfg.randomization.enabled else 0
-        self._skin_history = {} if late == 0 else {  # newest first: what a late frame shows
+        # a ring per env, newest first from `head`: slot (head + k) % len holds the frame k steps old
+        self._skin_history = {} if late == 0 else {
             "frames": np.zeros((n, late + 1, self.tactile.num_taxels), np.float32),
-            "positions": np.zeros((n, late + 1, self.tactile.num_taxels, 3), np.float32)}
+            "positions": np.zeros((n, late + 1, self.tactile.num_taxels, 3), np.float32),
+            "head": np.zeros(n, np.int64)}
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -255,7 +257,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.hand_io.load_state_dict(state["hand_io"])
         self.skin_signal.load_state_dict(state["skin_signal"])
         for name, mine in self._skin_history.items():
-            mine[...] = state["skin_history"][name]
+            # head 0 is the layout of states saved before the ring (newest first from slot 0)
+            mine[...] = state["skin_history"].get(name, 0) if name == "head" else state["skin_history"][name]
 
     # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -453,10 +456,11 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if fresh:
             frames[ids], positions[ids] = tactile[:, None], taxel_pos[:, None]
             return tactile, taxel_pos
-        frames[ids, 1:], positions[ids, 1:] = frames[ids, :-1], positions[ids, :-1]
-        frames[ids, 0], positions[ids, 0] = tactile, taxel_pos
         rows = np.arange(self.num_envs)[ids]
-        late = self.hand_io.skin_delay[rows]
+        head = self._skin_history["head"]
+        head[rows] = (head[rows] - 1) % frames.shape[1]  # the oldest slot takes the new frame
+        frames[rows, head[rows]], positions[rows, head[rows]] = tactile, taxel_pos
+        late = (head[rows] + self.hand_io.skin_delay[rows]) % frames.shape[1]
         return frames[rows, late], positions[rows, late]
 
     def _reward_terms(self, d_angle, actions, action_change, success, fall, timeout,
