@@ -170,3 +170,18 @@ def test_mixed_datasets_share_every_split(tmp_path, dataset):
         assert ids & first and ids - first
     with pytest.raises(Exception, match="needs split=episode"):
         PerceptionTrainConfig(mix=(str(other),))
+
+
+def test_the_whole_of_another_dataset_is_read_without_the_training_mix(tmp_path, dataset):
+    from tacgnn.perception.evaluation import test_data
+
+    other = write_dataset(tmp_path / "other", episodes(3, 20, seed=7))
+    cfg = with_taxels_of(config(mix=(str(dataset),)))
+    assert len(test_data(cfg, other, whole=True)) == 60
+
+
+def with_taxels_of(cfg):
+    from tacgnn.perception.checkpoint import with_taxels
+    from tests.perception.sequence_helpers import T
+
+    return with_taxels(cfg, T)

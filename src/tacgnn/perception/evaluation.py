@@ -8,6 +8,7 @@ single-frame model reads every frame alone.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -162,8 +163,9 @@ def split_data(cfg: PerceptionTrainConfig,
 
 
 def test_data(cfg: PerceptionTrainConfig, dataset: str | Path, whole: bool = False) -> SequenceData:
-    """The frames a training run never saw: its test split (same max_samples), or all frames."""
-    data = load_data(cfg, dataset, 0 if whole else cfg.max_samples)
+    """The frames a training run never saw: its test split (same max_samples; the `mix` datasets'
+    test episodes too), or all frames of `dataset` alone."""
+    data = load_data(replace(cfg, mix=()) if whole else cfg, dataset, 0 if whole else cfg.max_samples)
     if data.frames.readings.shape[1] != cfg.model.num_taxels:
         raise DatasetError(f"{dataset}: has {data.frames.readings.shape[1]} taxels, the model was trained on "
                            f"{cfg.model.num_taxels}")
