@@ -87,7 +87,7 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
 
     torch.set_num_threads(1)
     controller = BlindController(BlindControllerConfig(policy=policy))
-    processor = SkinProcessor(SkinCalibration.load(calibration), controller.env_config.skin)
+    processor = SkinProcessor.for_env(SkinCalibration.load(calibration), controller.env_config)
     hand = SimHand(controller.env_config, SimHandConfig(task=task, episodes=episodes, seed=seed), RosConfig())
     env = hand.env
     env.reset(seed=seed)

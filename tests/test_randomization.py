@@ -169,3 +169,22 @@ def test_a_late_skin_shows_the_frame_of_that_many_steps_ago(frames_late):
     assert seen["on_time"][1:].any()
     expected = np.concatenate([np.repeat(seen["on_time"][:1], frames_late, 0), seen["on_time"][:-frames_late]])
     np.testing.assert_array_equal(seen["late"], expected)
+
+
+def test_a_common_share_moves_a_hand_s_joints_together_inside_the_range():
+    """With `joint_common` the damping factors of one hand rise and fall together (a whole hand near x3
+    occurs, as the robustness table's row), still inside the range; 0 leaves the draws as they were."""
+    from tacgnn.envs.randomization import draw_ranges
+
+    u = np.random.default_rng(0).random((4000, RandomizationConfig().draws_per_reset() + 3))
+    alone = draw_ranges(RandomizationConfig(), u[:, :-3])["damping_scale"]
+    together = draw_ranges(RandomizationConfig(joint_common=0.8), u)["damping_scale"]
+    assert RandomizationConfig(joint_common=0.8).draws_per_reset() == RandomizationConfig().draws_per_reset() + 3
+    assert (together >= 0.3 - 1e-9).all() and (together <= 3.0 + 1e-9).all()
+    hand_mean = np.exp(np.log(together).mean(1))
+    assert (hand_mean > 2.2).mean() > 0.03 and (np.exp(np.log(alone).mean(1)) > 2.2).mean() == 0
+    # joints of one hand agree: their log spread is a fifth of the independent draws'
+    assert np.log(together).std(1).mean() < 0.3 * np.log(alone).std(1).mean()
+    np.testing.assert_array_equal(draw_ranges(RandomizationConfig(joint_common=0.0), u[:, :-3])["damping_scale"], alone)
+    with pytest.raises(ConfigError, match="randomization.joint_common"):
+        RandomizationConfig(joint_common=1.5)

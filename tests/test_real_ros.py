@@ -120,7 +120,7 @@ def test_blind_controller_runs_the_simulated_hand_and_replays_offline(ros_env, c
     from tacgnn.real.skin import SkinCalibration, SkinProcessor
 
     controller = BlindController(BlindControllerConfig(policy=str(policy)))
-    processor = SkinProcessor(SkinCalibration.load(calibration), controller.env_config.skin)
+    processor = SkinProcessor.for_env(SkinCalibration.load(calibration), controller.env_config)
     recorded, replayed = replay_run(tmp_path / "run.bag", RosConfig(), controller, processor)
     assert len(recorded) == stats["commands"]
     np.testing.assert_array_equal(replayed, recorded)

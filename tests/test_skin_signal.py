@@ -8,7 +8,7 @@ import pytest
 from tacgnn.config import ConfigError, override
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.hand.skin_layout import default_skin
-from tacgnn.sim.skin_signal import SkinSignal, SkinSignalConfig, calibrated, neighbour_table
+from tacgnn.sim.skin_signal import SkinSignal, SkinSignalConfig, calibrated, neighbour_table, track_baseline
 
 LAYOUT = default_skin()
 T = LAYOUT.num_taxels
@@ -54,11 +54,11 @@ def test_a_real_skin_at_rest_reads_zero_but_for_its_stuck_taxels():
     assert (out[~stuck] > 0).mean() < 1e-3
 
 
-def test_an_old_calibration_lets_drift_through_as_phantom_touches():
+def test_an_old_fixed_calibration_lets_drift_through_as_phantom_touches():
     rest = np.zeros((8, T), np.float32)
-    fresh = skin(replace(SkinSignalConfig(), stuck_fraction=(0.0, 0.0), calibration_age=(0.0, 0.0)), n=8)
-    stale = skin(replace(SkinSignalConfig(), stuck_fraction=(0.0, 0.0), calibration_age=(3600.0, 3600.0),
-                         drift_rate=0.01), n=8)
+    fixed = replace(SkinSignalConfig(), stuck_fraction=(0.0, 0.0), baseline_tracking=0.0)
+    fresh = skin(replace(fixed, calibration_age=(0.0, 0.0)), n=8)
+    stale = skin(replace(fixed, calibration_age=(3600.0, 3600.0), drift_rate=0.01), n=8)
     rng = np.random.default_rng(0)
     assert (fresh(rest, slice(None), rng) > 0).mean() < (stale(rest, slice(None), rng) > 0).mean()
 
@@ -154,3 +154,41 @@ def test_the_compiled_chain_is_the_numpy_chain_to_the_bit():
         np.testing.assert_array_equal(compiled.last_raw, reference.last_raw)
     for name in SkinSignal.STATE:
         np.testing.assert_array_equal(getattr(compiled, name), getattr(reference, name))
+
+
+def test_a_tracking_baseline_keeps_a_drifting_skin_at_zero_for_minutes_and_a_press_whole():
+    """Five minutes of drift at rest: the fixed baseline reads a growing share of the taxels as
+    touched, the tracking one none; a press held for 2 s keeps its reading (pressed taxels keep
+    their baseline)."""
+    config = replace(SkinSignalConfig(), stuck_fraction=(0.0, 0.0), calibration_age=(0.0, 0.0))
+    fixed, tracking = skin(replace(config, baseline_tracking=0.0), n=4), skin(config, n=4)
+    rng = np.random.default_rng(0)
+    rest = np.zeros((4, T), np.float32)
+    for _ in range(15_000):  # 300 s at 50 Hz
+        phantom_fixed = fixed(rest, slice(None), rng)
+        phantom_tracking = tracking(rest, slice(None), rng)
+    assert (phantom_fixed > 0).mean() > 0.05 and (phantom_tracking > 0).mean() < 1e-3
+    press = rest.copy()
+    press[:, 100] = 1.0
+    first = tracking(press, slice(None), rng)[:, 100]
+    for _ in range(100):  # 2 s
+        held = tracking(press, slice(None), rng)[:, 100]
+    assert (first > 0.5).all() and (held > first * 0.95).all()
+
+
+def test_the_real_path_tracks_the_baseline_as_the_simulated_skin_does():
+    from tacgnn.real.skin import SkinProcessor, calibrate
+
+    rng = np.random.default_rng(0)
+    rest = 100 + rng.normal(0, 1, (30, T))
+    cal = calibrate(rest)
+    processor = SkinProcessor(cal, tracking_rate=0.1)
+    baseline = cal.baseline.copy()
+    for k in range(50):  # a slow drift of every taxel, and one pressed taxel
+        raw = rest[k % 30] + 0.05 * k + np.where(np.arange(T) == 7, 30.0, 0.0)
+        out = processor.process_raw(raw)
+        np.testing.assert_array_equal(out, calibrated(raw, baseline, cal.threshold, cal.gain, cal.dead))
+        track_baseline(raw, baseline, cal.threshold, 0.1)
+    assert out[7] > 20 and (out[np.arange(T) != 7] == 0).mean() > 0.99
+    np.testing.assert_array_equal(SkinProcessor(cal).process_raw(raw), calibrated(raw, cal.baseline, cal.threshold,
+                                                                                  cal.gain, cal.dead))

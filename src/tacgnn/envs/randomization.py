@@ -80,6 +80,11 @@ class RandomizationConfig:
     """Std (rad/s) of the white noise on each joint velocity reading."""
     action_noise: float = 0.05
     """Std of the white noise on each action (in [-1, 1] units), the authors' value."""
+    joint_common: float = 0.0
+    """Share of each log-uniform per-joint factor (stiffness, damping, armature) drawn once per env
+    and common to its joints, the rest per joint: ``log f_j = log lo + (c u_env + (1 - c) u_j) log(hi / lo)``.
+    0: each joint alone, as the authors draw (a whole hand at x3 damping then never occurs); near 1:
+    a hand whose motors, or whose identification, are off together, as the robustness table's rows."""
 
     def __post_init__(self) -> None:
         for name in RANGES:
@@ -97,6 +102,7 @@ class RandomizationConfig:
             else:
                 check(0 < lo and hi <= MAX_FORCE_FACTOR, key, f"needs 0 < low <= high <= {MAX_FORCE_FACTOR}, "
                       f"got ({lo}, {hi})")
+        check(0 <= self.joint_common <= 1, "randomization.joint_common", f"must be in [0, 1], got {self.joint_common}")
         for name in ("joint_noise", "velocity_noise", "action_noise"):
             value = getattr(self, name)
             check(0 <= value <= 10, f"randomization.{name}", f"must be in [0, 10], got {value}")
@@ -113,25 +119,30 @@ class RandomizationConfig:
     def nominal(cls, ball_mass: float, /, **changes: Any) -> RandomizationConfig:
         """Enabled, every range collapsed onto the nominal hand (ball mass `ball_mass`, gravity 9.81,
         factors 1, no latency, friction, backlash or noise), then `changes` (e.g. damping_scale=(3, 3))."""
-        points = {f.name: (1.0, 1.0) for f in fields(cls) if f.name in RANGES}
+        points: dict[str, Any] = {f.name: (1.0, 1.0) for f in fields(cls) if f.name in RANGES}
         points.update(ball_mass=(ball_mass, ball_mass), gravity=(9.81, 9.81), joint_friction=(0.0, 0.0),
                       backlash=(0.0, 0.0), joint_bias=(0.0, 0.0), **{k: (0.0, 0.0) for k in LATENCIES})
-        base = cls(enabled=True, joint_noise=0.0, velocity_noise=0.0, action_noise=0.0, **points)
+        base = replace(cls(enabled=True, joint_noise=0.0, velocity_noise=0.0, action_noise=0.0), **points)
         return replace(base, **changes)
 
     def draws_per_reset(self) -> int:
-        return sum(WIDTHS.values())
+        """Uniforms per reset: the ranges', then (with `joint_common`) one per log-uniform factor."""
+        return sum(WIDTHS.values()) + (len(LOG_UNIFORM) if self.joint_common > 0 else 0)
 
 
 def draw_ranges(cfg: RandomizationConfig, u: np.ndarray) -> dict[str, np.ndarray]:
     """Each range's values for uniforms `u` (n, draws_per_reset) in [0, 1): ball_mass (n, 2), the
     other per-env values (n,), the per-joint ones (n, 16)."""
     out, start = {}, 0
+    common = sum(WIDTHS.values())  # the per-env shares of the log-uniform factors come last
     for name in RANGES:
         lo, hi = getattr(cfg, name)
         x = u[:, start:start + WIDTHS[name]]
         start += WIDTHS[name]
         if name in LOG_UNIFORM:
+            if cfg.joint_common > 0:
+                shared = u[:, common + LOG_UNIFORM.index(name), None]
+                x = cfg.joint_common * shared + (1 - cfg.joint_common) * x
             value = np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x)
         else:
             value = lo + (hi - lo) * x

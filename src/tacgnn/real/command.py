@@ -102,7 +102,7 @@ def _action(args, cfg) -> int:
         calibration = SkinCalibration.load(args.calibration)  # before the networks load: fail fast
         controller = BlindController(BlindControllerConfig(policy=_policy(args), max_step_rad=args.max_step_rad,
                                                            max_target_rate=args.max_target_rate))
-        processor = SkinProcessor(calibration, controller.env_config.skin)
+        processor = SkinProcessor.for_env(calibration, controller.env_config)
         stats = run_controller(cfg, controller, processor, duration_s=args.duration, record=args.record,
                                stats_path=args.stats)
         print(f"{stats.ticks} ticks, {stats.commands} commands, {stats.missed} missed "

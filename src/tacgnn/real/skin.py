@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.real.bag import BagError, read_bag
 from tacgnn.real.messages import decode_tactile
 from tacgnn.real.ros_config import RosConfig
-from tacgnn.sim.skin_signal import calibrated
+from tacgnn.sim.skin_signal import calibrated, track_baseline
 
 
 class CalibrationError(ValueError):
@@ -151,14 +152,31 @@ def calibrate(rest_frames: np.ndarray, layout: SkinLayout | None = None, sigmas:
 
 
 class SkinProcessor:
-    """Applies a calibration to raw per-patch arrays, one frame or many."""
+    """Applies a calibration to raw per-patch arrays, one frame or many.
 
-    def __init__(self, calibration: SkinCalibration, layout: SkinLayout | None = None):
+    With `tracking_rate` > 0 (a controller's stream of frames, one at a time) the baseline follows
+    every taxel that reads no touch by that share per frame (`track_baseline`, as the simulated
+    skin does), so drift over a session is not read as touches; 0 keeps the calibration's baseline.
+    """
+
+    def __init__(self, calibration: SkinCalibration, layout: SkinLayout | None = None, tracking_rate: float = 0.0):
         self.layout = layout or default_skin()
         calibration.check_layout(self.layout)
+        if not 0 <= tracking_rate <= 1:
+            raise CalibrationError(f"tracking_rate must be in [0, 1], got {tracking_rate}")
         self.calibration = calibration
+        self.tracking_rate = tracking_rate
+        self.baseline = calibration.baseline.copy()  # the tracked baseline (the calibration's, fixed at 0)
         self._offsets = self.layout.offsets()
         self._names = [p.name for p in self.layout.patches]
+
+    @classmethod
+    def for_env(cls, calibration: SkinCalibration, env_config: Any) -> SkinProcessor:
+        """The processor a policy trained on `env_config` (a BaodingConfig) expects: its skin layout,
+        and its skin's baseline tracking at its control rate."""
+        signal = env_config.skin_signal
+        rate = 0.0 if signal.is_ideal else signal.tracking_rate(env_config.control_dt)
+        return cls(calibration, env_config.skin, tracking_rate=rate)
 
     def assemble(self, patches: Mapping[str, np.ndarray] | Sequence[np.ndarray]) -> np.ndarray:
         """The raw (T,) vector in driver order from one frame's per-patch arrays (validated)."""
@@ -190,7 +208,13 @@ class SkinProcessor:
         if raw.shape[-1:] != (self.layout.num_taxels,):
             raise ValueError(f"raw skin must end in ({self.layout.num_taxels},), got {raw.shape}")
         c = self.calibration
-        return calibrated(raw[..., c.order], c.baseline, c.threshold, c.gain, c.dead)  # the simulated skin's too
+        raw = raw[..., c.order]
+        out = calibrated(raw, self.baseline, c.threshold, c.gain, c.dead)  # the simulated skin's too
+        if self.tracking_rate > 0:
+            if raw.ndim != 1:
+                raise ValueError("a tracking baseline follows a stream: give one frame at a time")
+            track_baseline(raw, self.baseline, c.threshold, self.tracking_rate)
+        return out
 
     def __call__(self, patches: Mapping[str, np.ndarray] | Sequence[np.ndarray]) -> np.ndarray:
         """(T,) float32 readings of one frame given as per-patch arrays."""
