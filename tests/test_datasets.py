@@ -311,7 +311,7 @@ def test_random_motion_wanders_smoothly_around_the_initial_pose():
     from tacgnn.envs.scripted import RandomMotion
 
     base = np.linspace(-0.5, 0.5, 16)
-    motion = RandomMotion(base, num_envs=256, seed=0, amplitude=0.15, correlation_steps=20.0)
+    motion = RandomMotion(base, num_envs=256, seed=0, amplitude=(0.15, 0.15), correlation_steps=(20.0, 20.0))
     path = np.stack([motion() for _ in range(400)])  # (steps, envs, joints)
     offset = path - base
     assert abs(offset.mean()) < 0.01 and offset.std() == pytest.approx(0.15, rel=0.05)
@@ -320,6 +320,9 @@ def test_random_motion_wanders_smoothly_around_the_initial_pose():
     lag20 = np.corrcoef(offset[:-20].ravel(), offset[20:].ravel())[0, 1]
     assert lag1 > 0.9 and lag20 == pytest.approx(np.exp(-1), abs=0.05)
     assert np.array_equal(RandomMotion(base, 4, seed=1)(), RandomMotion(base, 4, seed=1)())
+    varied = RandomMotion(base, 256, seed=2)  # each env its own amplitude, from the default range
+    spread = (np.stack([varied() for _ in range(300)]) - base).std(axis=(0, 2))
+    assert spread.min() < 0.1 and spread.max() > 0.22
 
 
 def test_random_motion_records_balls_on_the_skin(tmp_path):

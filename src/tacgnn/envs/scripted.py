@@ -47,23 +47,25 @@ class FingerWave:
 
 class RandomMotion:
     """Open-loop smooth random motion: each joint's action follows its own Ornstein-Uhlenbeck path
-    around the initial pose (mean-reverting, so the hand does not drift to a joint limit).
+    around the initial pose (mean-reverting, so the hand does not drift to a joint limit). Each env
+    draws its own amplitude and pace, from small slow shifts to quick wide ones.
 
     Args:
         initial_action: (16,) action of the initial pose.
         num_envs: batch size.
-        seed: draws the paths.
-        amplitude: stationary standard deviation of each joint's action (action units).
-        correlation_steps: control steps over which a path forgets its value (1/e).
+        seed: draws each env's amplitude and pace, then the paths.
+        amplitude: (low, high) stationary standard deviation of each joint's action (action units).
+        correlation_steps: (low, high) control steps over which a path forgets its value (1/e).
     """
 
     def __init__(self, initial_action: np.ndarray, num_envs: int, seed: int = 0,
-                 amplitude: float = 0.15, correlation_steps: float = 20.0):
+                 amplitude: tuple[float, float] = (0.05, 0.3), correlation_steps: tuple[float, float] = (5.0, 40.0)):
         self.rng = np.random.default_rng(seed)
         self.base = np.asarray(initial_action, dtype=np.float64)
-        self.keep = np.exp(-1.0 / correlation_steps)
-        self.step_std = amplitude * np.sqrt(1.0 - self.keep ** 2)
-        self.offset = amplitude * self.rng.standard_normal((num_envs, NUM_JOINTS))
+        spread = self.rng.uniform(*amplitude, (num_envs, 1))
+        self.keep = np.exp(-1.0 / self.rng.uniform(*correlation_steps, (num_envs, 1)))
+        self.step_std = spread * np.sqrt(1.0 - self.keep ** 2)
+        self.offset = spread * self.rng.standard_normal((num_envs, NUM_JOINTS))
 
     def __call__(self, obs=None) -> np.ndarray:
         self.offset = self.keep * self.offset + self.step_std * self.rng.standard_normal(self.offset.shape)
