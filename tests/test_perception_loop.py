@@ -261,7 +261,45 @@ def test_anchor_frames_keep_the_in_loop_model_fitting_another_distribution(tmp_p
 
     assert anchor_rmse(mixed_model) < 0.8 * anchor_rmse(plain_model)
     with pytest.raises(ConfigError, match="perception.anchor_dataset"):
-        replace(mixed, temporal=True)
+        replace(mixed, model=PerceptionModelConfig(name="mlp", joint_inputs=16))
+
+
+def test_a_temporal_model_keeps_fitting_the_anchor_s_episodes(tmp_path):
+    """A temporal model's anchor is windows of another dataset's episodes (here: random motion),
+    each update fitting them beside its own: it then reads those episodes better than without."""
+    from tacgnn.datasets.baoding_data import BaodingDataConfig, generate
+    from tacgnn.envs.baoding import BaodingEnv
+    from tacgnn.envs.scripted import FingerWave
+    from tacgnn.perception.evaluation import metrics, predict
+    from tacgnn.perception.models.temporal import MemoryConfig
+    from tacgnn.perception.sequences import load_sequences
+    from tacgnn.perception.train_config import PerceptionTrainConfig
+
+    generate(BaodingDataConfig(samples=768, shard_size=768, num_envs=8, seed=5, settle_steps=0, keep_every=1,
+                               scripted="random"), tmp_path / "anchor")
+    anchor = load_sequences(tmp_path / "anchor")
+    env = BaodingEnv(BaodingConfig(num_envs=16, obs_mode="perceived"))
+    base = OnlinePerceptionConfig(model=PerceptionModelConfig(name="mlp"), temporal=True, window=4, burn_in=4,
+                                  epochs=6, buffer_size=1024, batch_size=32, memory=MemoryConfig(feature=16, hidden=16))
+    mixed = replace(base, anchor_dataset=str(tmp_path / "anchor"), anchor_share=0.5)
+    plain_model, mixed_model = (OnlinePerception(c, to_dict(env.config.skin)) for c in (base, mixed))
+    for model in (plain_model, mixed_model):
+        model.bind_env(env)
+    env.perception = plain_model
+    env.reset(seed=0)
+    wave = FingerWave(env.last_action[0], 16, seed=0)
+    for _ in range(40):
+        *_, info = env.step(wave())
+        mixed_model.record(info)
+        plain_model.record(info)
+    for model in (plain_model, mixed_model):
+        model.update()
+    scoring = PerceptionTrainConfig(split="episode")
+    error = {name: metrics(predict(m.model, anchor), scoring, anchor)["position_rmse_cm"]
+             for name, m in (("plain", plain_model), ("mixed", mixed_model))}
+    assert error["mixed"] < 0.8 * error["plain"], error
+    with pytest.raises(ConfigError, match="perception.anchor_dataset"):
+        OnlinePerception(replace(mixed, window=500, buffer_size=2048), to_dict(env.config.skin))
 
 
 def test_a_missing_anchor_dataset_is_refused_naming_the_key(tmp_path):

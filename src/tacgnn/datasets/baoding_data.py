@@ -34,7 +34,7 @@ from tacgnn.datasets.store import Field, ShardedWriter
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
 from tacgnn.envs.scripted import FingerWave, RandomMotion
 
-SCRIPTED = {"wave": FingerWave, "random": RandomMotion}
+SCRIPTED: dict[str, Callable[..., Callable[..., np.ndarray]]] = {"wave": FingerWave, "random": RandomMotion}
 
 
 @dataclass(frozen=True)

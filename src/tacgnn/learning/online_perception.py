@@ -45,7 +45,7 @@ from tacgnn.perception.models import PerceptionModelConfig
 from tacgnn.perception.models.temporal import FRAME_MODELS, MemoryConfig, TemporalPerception
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.rest_positions import rest_positions_cm
-from tacgnn.perception.sequences import SequenceData, as_sequence
+from tacgnn.perception.sequences import SequenceData, as_sequence, load_sequences
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import backward_checked, epoch_order, window_loss, window_starts
 
@@ -103,9 +103,10 @@ class OnlinePerceptionConfig:
     anchor_dataset: str = ""
     """A Baoding dataset (e.g. the teacher's frames, `tacgnn make-dataset baoding`) mixed into
     every update, so that the model keeps fitting frames other than the blind policy's own,
-    which alone it fits at the cost of others (docs/results.md, section 6); '' = the buffer alone."""
+    which alone it fits at the cost of others (docs/results.md, section 6); '' = the buffer alone.
+    A temporal model draws windows of its episodes (a dataset made with ``--keep-every 1``)."""
     anchor_share: float = 0.5
-    """With `anchor_dataset`: the share of each update's samples drawn from it."""
+    """With `anchor_dataset`: the share of each update's samples (frames or windows) drawn from it."""
 
     def __post_init__(self) -> None:
         check(self.model.out_dim == 6, "perception.model.out_dim", "ball positions are 6 values")
@@ -129,8 +130,8 @@ class OnlinePerceptionConfig:
         check(self.weight_decay >= 0, "perception.weight_decay", f"must be >= 0, got {self.weight_decay}")
         check(0 < self.anchor_share < 1, "perception.anchor_share", f"must be in (0, 1), got {self.anchor_share}")
         if self.anchor_dataset:
-            check(not self.temporal and self.model.joint_inputs == 0, "perception.anchor_dataset",
-                  "mixes single frames of skin alone: not with temporal or joint_inputs")
+            check(self.temporal or self.model.joint_inputs == 0, "perception.anchor_dataset",
+                  "mixes single frames of skin alone: not with joint_inputs")
         check(self.buffer_size <= 1_000_000, "perception.buffer_size",  # 16 bytes per taxel and frame: 10 GB
               f"must be <= 1,000,000, got {self.buffer_size}")
 
@@ -187,11 +188,12 @@ class OnlinePerception:
         state_dim = self.model.state_dim if isinstance(self.model, TemporalPerception) else 0
         self.state = torch.zeros(0, state_dim)
         self.episode_of_env = torch.zeros(0, dtype=torch.long)
-        self.anchor = self._load_anchor(cfg.anchor_dataset, num_taxels) if cfg.anchor_dataset else None
-        self._anchor_batch = round(cfg.batch_size * cfg.anchor_share / (1 - cfg.anchor_share))
         self.window = cfg.window if self.temporal else 1
         self.burn_in = cfg.burn_in if self.temporal else 0
         self.windows_per_step = max(1, round(cfg.batch_size / cfg.window)) if self.temporal else cfg.batch_size
+        self._anchor_starts = torch.zeros(0, dtype=torch.long)  # temporal: where anchor windows can start
+        self.anchor = self._load_anchor(cfg.anchor_dataset, num_taxels) if cfg.anchor_dataset else None
+        self._anchor_batch = round(cfg.batch_size * cfg.anchor_share / (1 - cfg.anchor_share))
 
     # --- acting --------------------------------------------------------------------------
     def bind_env(self, env) -> None:
@@ -284,23 +286,35 @@ class OnlinePerception:
         frames = TactileData(self.readings[order], self.positions[order], self.labels[order], self.joints[order])
         return SequenceData(frames, self.actions[order], self.episode[order], self.step[order])
 
-    @staticmethod
-    def _load_anchor(path: str, num_taxels: int) -> TactileData:
-        """The anchor frames, or a `ConfigError` naming the key when the dataset is missing, broken
-        or of another skin."""
+    def _load_anchor(self, path: str, num_taxels: int) -> TactileData | SequenceData:
+        """The anchor frames (a temporal model's: its episodes), or a `ConfigError` naming the key when
+        the dataset is missing, broken, of another skin or (temporal) without episodes of a window."""
         try:
-            anchor = load_tactile(path, "baoding")
-        except DatasetError as err:
+            anchor = load_sequences(path) if self.temporal else load_tactile(path, "baoding")
+            if isinstance(anchor, SequenceData):
+                self._anchor_starts = window_starts(anchor, self.window)
+        except (DatasetError, ConfigError) as err:
             raise ConfigError(f"perception.anchor_dataset: {err}") from None
-        if anchor.readings.shape[1] != num_taxels:
-            raise ConfigError(f"perception.anchor_dataset {path}: frames of "
-                              f"{anchor.readings.shape[1]} taxels, this env's skin has {num_taxels}")
+        taxels = (anchor.frames if isinstance(anchor, SequenceData) else anchor).readings.shape[1]
+        if taxels != num_taxels:
+            raise ConfigError(f"perception.anchor_dataset {path}: frames of {taxels} taxels, this env's skin has "
+                              f"{num_taxels}")
         return anchor
 
     def _loss(self, data: SequenceData, starts: torch.Tensor) -> torch.Tensor:
-        """The loss of windows at `starts`; frames alone get `anchor_share` of anchor frames added."""
+        """The loss of windows at `starts`, with `anchor_share` of the samples from the anchor: frames
+        alone beside frames, or (temporal) windows of its episodes, weighted by their share."""
+        own = window_loss(self.model, data, starts, self.window, self.burn_in, self.objective) \
+            if self.anchor is None or isinstance(self.anchor, SequenceData) else None
         if self.anchor is None:
-            return window_loss(self.model, data, starts, self.window, self.burn_in, self.objective)
+            assert own is not None
+            return own
+        if isinstance(self.anchor, SequenceData):
+            assert own is not None
+            k = max(1, round(len(starts) * self.cfg.anchor_share / (1 - self.cfg.anchor_share)))
+            pick = self._anchor_starts[torch.randint(len(self._anchor_starts), (k,), generator=self._gen)]
+            theirs = window_loss(self.model, self.anchor, pick, self.window, self.burn_in, self.objective)
+            return (1 - self.cfg.anchor_share) * own + self.cfg.anchor_share * theirs
         a = torch.randint(len(self.anchor), (self._anchor_batch,), generator=self._gen)
         readings = torch.cat([data.frames.readings[starts], self.anchor.readings[a]])
         positions = torch.cat([data.frames.positions[starts], self.anchor.positions[a]])
