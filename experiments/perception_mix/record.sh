@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # The perception data of docs/results.md section 6: every step kept, randomised hands, the real skin.
-# Training mix (split by episode into train / validation / test): the shipped ground-truth policy on
+# Training mix (split by episode into train / validation / test): a ground-truth policy (teacher_hold) on
 # the 1 s hold and on the continuous task, and smooth random motion. Held out (never trained on): the
-# scripted finger wave and another teacher (the nominal-hand teacher). Fresh frames of the shipped
+# scripted finger wave and another teacher (the nominal-hand teacher). Fresh frames of that
 # teacher (another seed) for the in-loop figures. About 5 minutes on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 T=.venv/bin/tacgnn
-GT=src/tacgnn/assets/baoding_gt_policy.pt
+GT=results/perception_mix/checkpoints/teacher_hold.pt  # the ground-truth policy shipped before this data (hold, 900 it.)
 OTHER=results/real_hand/checkpoints/teacher_nominal_simple.pt
 ON="--keep-every 1 --envs 16 --settle-steps 0 --shard-size 10000"
 $T make-dataset baoding --policy $GT --out data/mix_hold --samples 160000 --seed 1 $ON --set task=hold randomization.enabled=true
