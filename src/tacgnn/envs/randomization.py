@@ -81,10 +81,10 @@ class RandomizationConfig:
     action_noise: float = 0.05
     """Std of the white noise on each action (in [-1, 1] units), the authors' value."""
     joint_common: float = 0.0
-    """Share of each log-uniform per-joint factor (stiffness, damping, armature) drawn once per env
-    and common to its joints, the rest per joint: ``log f_j = log lo + (c u_env + (1 - c) u_j) log(hi / lo)``.
-    0: each joint alone, as the authors draw (a whole hand at x3 damping then never occurs); near 1:
-    a hand whose motors, or whose identification, are off together, as the robustness table's rows."""
+    """Share of hands whose log-uniform per-joint factors (stiffness, damping, armature) are each one
+    draw common to all joints (motors, or an identification, off together, as the robustness table's
+    rows); the other hands draw per joint. 0: every hand per joint, as the authors draw, where a
+    whole hand at x3 damping never occurs."""
 
     def __post_init__(self) -> None:
         for name in RANGES:
@@ -126,23 +126,24 @@ class RandomizationConfig:
         return replace(base, **changes)
 
     def draws_per_reset(self) -> int:
-        """Uniforms per reset: the ranges', then (with `joint_common`) one per log-uniform factor."""
-        return sum(WIDTHS.values()) + (len(LOG_UNIFORM) if self.joint_common > 0 else 0)
+        """Uniforms per reset: the ranges', then (with `joint_common`) whether the hand's factors are
+        common, and one draw per log-uniform factor."""
+        return sum(WIDTHS.values()) + (1 + len(LOG_UNIFORM) if self.joint_common > 0 else 0)
 
 
 def draw_ranges(cfg: RandomizationConfig, u: np.ndarray) -> dict[str, np.ndarray]:
     """Each range's values for uniforms `u` (n, draws_per_reset) in [0, 1): ball_mass (n, 2), the
     other per-env values (n,), the per-joint ones (n, 16)."""
     out, start = {}, 0
-    common = sum(WIDTHS.values())  # the per-env shares of the log-uniform factors come last
+    common = sum(WIDTHS.values())  # the common hands' draws come last: the coin, then one per factor
+    whole_hand = u[:, common, None] < cfg.joint_common if cfg.joint_common > 0 else None
     for name in RANGES:
         lo, hi = getattr(cfg, name)
         x = u[:, start:start + WIDTHS[name]]
         start += WIDTHS[name]
         if name in LOG_UNIFORM:
-            if cfg.joint_common > 0:
-                shared = u[:, common + LOG_UNIFORM.index(name), None]
-                x = cfg.joint_common * shared + (1 - cfg.joint_common) * x
+            if whole_hand is not None:
+                x = np.where(whole_hand, u[:, common + 1 + LOG_UNIFORM.index(name), None], x)
             value = np.exp(math.log(lo) + (math.log(hi) - math.log(lo)) * x)
         else:
             value = lo + (hi - lo) * x
