@@ -1,4 +1,4 @@
-"""Convert perception checkpoints and policy files of format version 1 to the current format, in place.
+"""Convert perception checkpoints (format versions 1 and 2) and policy files (version 1) to the current format.
 
     .venv/bin/python experiments/convert_checkpoints.py FILE_OR_FOLDER... [--out-dir DIR] [--dry-run]
 
@@ -19,7 +19,8 @@ they existed; here, and only here, those values are written into the file:
   ``temporal_feature`` / ``temporal_hidden`` as ``memory.feature`` / ``memory.hidden``, and its
   per-env state (empty for a single-frame perception).
 
-The weights are not touched.
+A version 2 perception checkpoint lacks the training keys added since (``V2_TRAIN_ADDITIONS``: no
+validation split, no mixed datasets, as it was trained). The weights are not touched.
 """
 
 from __future__ import annotations
@@ -64,6 +65,8 @@ V1_SEQUENCE_DEFAULTS: dict[str, Any] = {
     "lr_decay": 0.8, "train_fraction": 0.8, "max_frames": 0, "extra_train": [], "seed": 0, "threads": 1,
     "match_balls": True, "eval_from_step": 6}
 V1_MEMORY_DEFAULTS: dict[str, Any] = {"feature": 64, "hidden": 128, "joints": 16, "actions": 16}
+#: Perception training keys added in version 3, with the values version 2 files were trained with.
+V2_TRAIN_ADDITIONS: dict[str, Any] = {"val_fraction": 0.0, "mix": []}
 
 
 def model_v2(model: dict) -> dict:
@@ -110,7 +113,7 @@ def online_state_v2(state: dict) -> dict:
 
 
 def convert(data: Any, path: Path) -> dict | None:
-    """The version 2 form of a file's contents, or None when it is already current."""
+    """The current form of a file's contents, or None when it is already current."""
     if not isinstance(data, dict) or "format_version" not in data:
         raise CheckpointError(f"{path}: not a tacgnn perception checkpoint, training checkpoint or policy")
     if "actor_state_dict" in data:  # a PPO checkpoint or an exported policy
@@ -127,8 +130,10 @@ def convert(data: Any, path: Path) -> dict | None:
         return new
     if data["format_version"] == pckpt.CHECKPOINT_VERSION and data.get("kind") == pckpt.KIND:
         return None
+    if data["format_version"] == 2 and data.get("kind") == pckpt.KIND:
+        return {**data, "format_version": pckpt.CHECKPOINT_VERSION, "config": {**V2_TRAIN_ADDITIONS, **data["config"]}}
     if data["format_version"] != 1 or not {"config", "model", "dataset"} <= data.keys():
-        raise CheckpointError(f"{path}: not a perception checkpoint of format version 1")
+        raise CheckpointError(f"{path}: not a perception checkpoint of format version 1 or 2")
     try:
         config = perception_config_v2(data["config"], data.get("kind"))
     except (ValueError, KeyError, TypeError) as err:

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from tacgnn.files import FileProblem
-from tacgnn.perception.checkpoint import CheckpointError, load_checkpoint, load_model
+from tacgnn.perception.checkpoint import CHECKPOINT_VERSION, CheckpointError, load_checkpoint, load_model
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import train
 
@@ -23,7 +23,7 @@ def test_bad_checkpoints_fail_naming_the_file(tmp_path):
     torch.save({"format_version": 1, "evil": object()}, tmp_path / "evil.pt")
     with pytest.raises(FileProblem, match="evil.pt"):
         load_checkpoint(tmp_path / "evil.pt")
-    torch.save({"format_version": 2, "kind": "policy", "actor": {}}, tmp_path / "policy.pt")
+    torch.save({"format_version": CHECKPOINT_VERSION, "kind": "policy", "actor": {}}, tmp_path / "policy.pt")
     with pytest.raises(CheckpointError, match="policy.pt: not a tacgnn perception checkpoint"):
         load_checkpoint(tmp_path / "policy.pt")
 

@@ -73,7 +73,7 @@ def test_checkpoints_of_another_version_or_lacking_a_key_are_refused(tmp_path, d
     payload = torch.load(path, weights_only=True)
     torch.save({**payload, "format_version": 1}, tmp_path / "v1.pt")
     with pytest.raises(CheckpointError, match=r"v1.pt: a perception checkpoint of format version 1, this code reads "
-                                              r"version 2; convert it once with .*convert_checkpoints.py"):
+                                              r"version 3; convert it once with .*convert_checkpoints.py"):
         load_model(tmp_path / "v1.pt")
     del payload["config"]["memory"]["hidden"]
     torch.save(payload, tmp_path / "lacking.pt")
@@ -185,3 +185,21 @@ def with_taxels_of(cfg):
     from tests.perception.sequence_helpers import T
 
     return with_taxels(cfg, T)
+
+
+def test_a_checkpoint_of_the_previous_format_converts_to_the_same_model(tmp_path, dataset, experiment_script):
+    """Format 2 lacked the validation and mix keys; converted, it loads with the values it was
+    trained with (none) and the same weights."""
+    train_sequence(config(epochs=1), dataset, tmp_path / "run", log=quiet)
+    payload = torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=True)
+    old = {**payload, "format_version": 2,
+           "config": {k: v for k, v in payload["config"].items() if k not in ("val_fraction", "mix")}}
+    torch.save(old, tmp_path / "v2.pt")
+    with pytest.raises(CheckpointError, match="version 2"):
+        load_model(tmp_path / "v2.pt")
+    converter = experiment_script("convert_checkpoints")
+    assert converter.main([str(tmp_path / "v2.pt")]) == 0
+    model, cfg, _ = load_model(tmp_path / "v2.pt")
+    assert cfg.val_fraction == 0.0 and cfg.mix == ()
+    for name, weights in model.state_dict().items():
+        assert torch.equal(weights, payload["model"][name])

@@ -28,7 +28,7 @@ from tacgnn.perception.models import PerceptionModelConfig, build_model
 from tacgnn.perception.models.temporal import MemoryConfig, TemporalModelConfig, TemporalPerception
 from tacgnn.perception.train_config import PerceptionTrainConfig
 
-CHECKPOINT_VERSION = 2
+CHECKPOINT_VERSION = 3  # 3: the training config holds val_fraction and mix
 KIND = "perception"
 CHECKPOINT_KEYS = ("config", "epoch", "model", "optimizer", "history", "dataset", "rest_positions_cm")
 CONVERTER = "experiments/convert_checkpoints.py"
