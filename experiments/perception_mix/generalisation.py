@@ -3,7 +3,9 @@
 Each perception (a `train-perception` checkpoint, or a blind policy, whose perception is read out)
 reads every episode of each named dataset from its first frame, as in the env's loop; a dataset is
 ``name=folder``. The first dataset is the perception's own policy: every other row gives its
-ratio to that one (target <= 1.5x). Writes JSON (errors in cm: all, touched, untouched balls;
+ratio to that one (target <= 1.5x). With ``--split-of RUN_CHECKPOINT`` the validation and test episodes
+of that training run (its datasets and split) are added as two more columns: the variants are
+chosen on validation, and the test column is read once. Writes JSON (errors in cm: all, touched, untouched balls;
 provenance) and a Markdown table beside it.
 
     .venv/bin/python experiments/perception_mix/generalisation.py --out results/perception_mix/generalisation.json \\
@@ -24,8 +26,8 @@ from tacgnn.datasets.store import read_manifest
 from tacgnn.files import atomic_write_text
 from tacgnn.learning.checkpoint import load_policy_file
 from tacgnn.learning.policy import perception_from_checkpoint
-from tacgnn.perception.checkpoint import load_model
-from tacgnn.perception.evaluation import metrics, predict
+from tacgnn.perception.checkpoint import load_checkpoint, load_model, stored_config
+from tacgnn.perception.evaluation import load_data, metrics, predict, split_data
 from tacgnn.perception.sequences import load_sequences
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.provenance import provenance
@@ -61,11 +63,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--perception", nargs="+", required=True, help="name=checkpoint or name=blind policy")
     parser.add_argument("--dataset", nargs="+", required=True, help="name=folder; the first: the own policy's")
+    parser.add_argument("--split-of", default="", help="a train-perception checkpoint: add its validation and "
+                        "test episodes")
     parser.add_argument("--out", required=True, help="JSON file (the table: the same name, .md)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     perceptions, datasets = named(args.perception, "--perception"), named(args.dataset, "--dataset")
     data = {name: load_sequences(path) for name, path in datasets.items()}
+    if args.split_of:
+        run = load_checkpoint(args.split_of)
+        cfg = stored_config(PerceptionTrainConfig, run["config"], args.split_of, "config")
+        _, val, test = split_data(cfg, load_data(cfg, run["dataset"]["path"], cfg.max_samples))
+        if val is None:
+            raise ConfigError(f"--split-of {args.split_of}: its run has no validation split (val_fraction=0)")
+        data.update(validation=val, test=test)
     rows: dict[str, dict[str, dict[str, float]]] = {}
     for pname, path in perceptions.items():
         model, cfg = perception_model(path)
@@ -80,9 +91,12 @@ def main() -> None:
             print(f"{pname:>12} on {dname:>10}: {row['position_rmse_cm']:.3f} cm (touched {row['touched_rmse_cm']:.3f},"
                   f" untouched {row['untouched_rmse_cm']:.3f}), {row['ratio_to_own']:.2f}x its own policy's")
     controllers = {name: read_manifest(path)["metadata"]["controller"] for name, path in datasets.items()}
+    if args.split_of:
+        controllers.update(validation="the run's mix", test="the run's mix")
     result = {"perceptions": perceptions, "datasets": datasets, "controllers": controllers, "rows": rows,
               "target_ratio": TARGET_RATIO, "frames": {name: len(d) for name, d in data.items()},
-              "provenance": provenance({**perceptions}, None, {"datasets": datasets})}
+              "provenance": provenance({**perceptions, "split_of": args.split_of or None}, None,
+                                     {"datasets": datasets})}
     atomic_write_text(args.out, json.dumps(result, indent=1))
     head = "| perception | " + " | ".join(f"{d} (cm; x own)" for d in data) + " |"
     lines = [head, "|" + " --- |" * (len(data) + 1)]
