@@ -143,7 +143,7 @@ def test_control_tick_reorders_joints_and_stops_on_stale_data(controller):
     np.testing.assert_array_equal(pos, q)
 
     class Identity:  # a calibrated skin processor stand-in
-        def __call__(self, patches):
+        def __call__(self, patches, track=True):
             return np.concatenate([patches[p.name] for p in controller.env_config.skin.patches]).astype(np.float32)
 
     cfg = RosConfig()

@@ -190,5 +190,8 @@ def test_the_real_path_tracks_the_baseline_as_the_simulated_skin_does():
         np.testing.assert_array_equal(out, calibrated(raw, baseline, cal.threshold, cal.gain, cal.dead))
         track_baseline(raw, baseline, cal.threshold, 0.1)
     assert out[7] > 20 and (out[np.arange(T) != 7] == 0).mean() > 0.99
+    before = processor.baseline.copy()
+    processor.process_raw(raw + 0.01, track=False)  # a look (checking a message) moves nothing
+    np.testing.assert_array_equal(processor.baseline, before)
     np.testing.assert_array_equal(SkinProcessor(cal).process_raw(raw), calibrated(raw, cal.baseline, cal.threshold,
                                                                                   cal.gain, cal.dead))

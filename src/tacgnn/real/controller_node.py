@@ -74,7 +74,7 @@ def run_controller(cfg: RosConfig, controller, processor, duration_s: float = 0.
     node.wait_for(f"skin frame on {cfg.tactile_topic}", tick.skin, cfg.startup_timeout_s)
     node.wait_for_subscriber(publish, cfg.joint_cmd_topic, cfg.startup_timeout_s)
     pos, vel = decode_joint_state(tick.joints.msg, cfg.joint_names)
-    controller.warm_up(pos, vel, processor(decode_tactile(tick.skin.msg, cfg.tactile_fields)))
+    controller.warm_up(pos, vel, processor(decode_tactile(tick.skin.msg, cfg.tactile_fields), track=False))
     log.info("joint states and skin frames check out; controlling at %.0f Hz", cfg.rate_hz)
     collector = IdleCollector()
     bag = RunRecorder(record, cfg, tactile_cls) if record else None

@@ -202,23 +202,25 @@ class SkinProcessor:
             out[self._offsets[i]:self._offsets[i + 1]] = arr
         return out
 
-    def process_raw(self, raw: np.ndarray) -> np.ndarray:
-        """(..., T) raw vectors in driver order -> (..., T) float32 readings in simulator order."""
+    def process_raw(self, raw: np.ndarray, track: bool = True) -> np.ndarray:
+        """(..., T) raw vectors in driver order -> (..., T) float32 readings in simulator order;
+        `track` advances the tracking baseline by this frame (False: a look that changes nothing,
+        e.g. checking a message, so that the frames the policy acts on alone move the baseline)."""
         raw = np.asarray(raw, dtype=np.float64)
         if raw.shape[-1:] != (self.layout.num_taxels,):
             raise ValueError(f"raw skin must end in ({self.layout.num_taxels},), got {raw.shape}")
         c = self.calibration
         raw = raw[..., c.order]
         out = calibrated(raw, self.baseline, c.threshold, c.gain, c.dead)  # the simulated skin's too
-        if self.tracking_rate > 0:
+        if self.tracking_rate > 0 and track:
             if raw.ndim != 1:
                 raise ValueError("a tracking baseline follows a stream: give one frame at a time")
             track_baseline(raw, self.baseline, c.threshold, self.tracking_rate)
         return out
 
-    def __call__(self, patches: Mapping[str, np.ndarray] | Sequence[np.ndarray]) -> np.ndarray:
-        """(T,) float32 readings of one frame given as per-patch arrays."""
-        return self.process_raw(self.assemble(patches))
+    def __call__(self, patches: Mapping[str, np.ndarray] | Sequence[np.ndarray], track: bool = True) -> np.ndarray:
+        """(T,) float32 readings of one frame given as per-patch arrays (`track`: see `process_raw`)."""
+        return self.process_raw(self.assemble(patches), track)
 
     def never_active(self, raw_frames: np.ndarray) -> np.ndarray:
         """Indices (simulator order) of live taxels that read 0 in every frame of a session.
