@@ -40,7 +40,7 @@ class CountingController:
 
 
 def make_tick(cfg: RosConfig) -> ControlTick:
-    return ControlTick(cfg, CountingController(), lambda patches: np.zeros(1, np.float32))
+    return ControlTick(cfg, CountingController(), lambda patches, track=True: np.zeros(1, np.float32))
 
 
 def joint_state(ns: int | None) -> SimpleNamespace:
