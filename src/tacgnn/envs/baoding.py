@@ -457,10 +457,10 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             frames[ids], positions[ids] = tactile[:, None], taxel_pos[:, None]
             return tactile, taxel_pos
         rows = np.arange(self.num_envs)[ids]
-        head = self._skin_history["head"]
-        head[rows] = (head[rows] - 1) % frames.shape[1]  # the oldest slot takes the new frame
-        frames[rows, head[rows]], positions[rows, head[rows]] = tactile, taxel_pos
-        late = (head[rows] + self.hand_io.skin_delay[rows]) % frames.shape[1]
+        newest = (self._skin_history["head"][rows] - 1) % frames.shape[1]  # the oldest slot takes the new frame
+        self._skin_history["head"][rows] = newest
+        frames[rows, newest], positions[rows, newest] = tactile, taxel_pos
+        late = (newest + self.hand_io.skin_delay[rows]) % frames.shape[1]
         return frames[rows, late], positions[rows, late]
 
     def _reward_terms(self, d_angle, actions, action_change, success, fall, timeout,

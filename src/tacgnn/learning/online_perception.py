@@ -304,17 +304,15 @@ class OnlinePerception:
     def _loss(self, data: SequenceData, starts: torch.Tensor) -> torch.Tensor:
         """The loss of windows at `starts`, with `anchor_share` of the samples from the anchor: frames
         alone beside frames, or (temporal) windows of its episodes, weighted by their share."""
-        own = window_loss(self.model, data, starts, self.window, self.burn_in, self.objective) \
-            if self.anchor is None or isinstance(self.anchor, SequenceData) else None
-        if self.anchor is None:
-            assert own is not None
-            return own
-        if isinstance(self.anchor, SequenceData):
-            assert own is not None
-            k = max(1, round(len(starts) * self.cfg.anchor_share / (1 - self.cfg.anchor_share)))
+        if not isinstance(self.anchor, TactileData):  # no anchor, or an anchor of episodes
+            own = window_loss(self.model, data, starts, self.window, self.burn_in, self.objective)
+            if self.anchor is None:
+                return own
+            share = self.cfg.anchor_share
+            k = max(1, round(len(starts) * share / (1 - share)))
             pick = self._anchor_starts[torch.randint(len(self._anchor_starts), (k,), generator=self._gen)]
             theirs = window_loss(self.model, self.anchor, pick, self.window, self.burn_in, self.objective)
-            return (1 - self.cfg.anchor_share) * own + self.cfg.anchor_share * theirs
+            return (1 - share) * own + share * theirs
         a = torch.randint(len(self.anchor), (self._anchor_batch,), generator=self._gen)
         readings = torch.cat([data.frames.readings[starts], self.anchor.readings[a]])
         positions = torch.cat([data.frames.positions[starts], self.anchor.positions[a]])

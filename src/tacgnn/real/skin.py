@@ -166,7 +166,7 @@ class SkinProcessor:
             raise CalibrationError(f"tracking_rate must be in [0, 1], got {tracking_rate}")
         self.calibration = calibration
         self.tracking_rate = tracking_rate
-        self.baseline = calibration.baseline.copy()  # the tracked baseline (the calibration's, fixed at 0)
+        self.baseline = calibration.baseline.copy()  # tracked; the calibration's own while tracking_rate is 0
         self._offsets = self.layout.offsets()
         self._names = [p.name for p in self.layout.patches]
 
