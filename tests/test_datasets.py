@@ -325,6 +325,20 @@ def test_random_motion_wanders_smoothly_around_the_initial_pose():
     assert spread.min() < 0.1 and spread.max() > 0.22
 
 
+@pytest.mark.parametrize("name", ["wave", "random"])
+def test_a_scripted_controller_keeps_its_own_copy_of_the_initial_pose(name):
+    """Built from a row of the env's last actions (as every caller does), a controller's path
+    must not follow what the env writes there: it would drift with env 0's commands."""
+    from tacgnn.datasets.baoding_data import SCRIPTED
+
+    last_action = np.zeros((4, 16))
+    free, fed = SCRIPTED[name](last_action[0].copy(), 4, seed=0), SCRIPTED[name](last_action[0], 4, seed=0)
+    for _ in range(50):
+        expected, actions = free(), fed()
+        last_action[:] = actions  # what the env does with each step's actions
+        np.testing.assert_array_equal(actions, expected)
+
+
 def test_random_motion_records_balls_on_the_skin(tmp_path):
     cfg = dataclasses.replace(SMALL, scripted="random")
     generate(cfg, tmp_path / "ds")

@@ -41,9 +41,12 @@ def spawn_overlaps(model: Any, scratch: Any, qpos: np.ndarray, ball_geom: np.nda
     d.qpos[:] = qpos
     mujoco.mj_kinematics(m, d)
     mujoco.mj_collision(m, d)
-    geoms = d.contact.geom[:d.ncon]
-    with_ball = np.isin(geoms, ball_geom).any(axis=1)
-    return bool((d.contact.dist[:d.ncon][with_ball] < clearance).any())
+    near = d.contact.dist[:d.ncon] < clearance
+    if not near.any():
+        return False
+    is_ball = np.zeros(m.ngeom, bool)
+    is_ball[ball_geom] = True
+    return bool(is_ball[d.contact.geom[:d.ncon][near]].any())
 
 
 # --- the angle ---------------------------------------------------------------------------

@@ -30,7 +30,7 @@ class FingerWave:
                  period_steps: tuple[float, float] = (40.0, 80.0),
                  amplitude: tuple[float, float] = (0.05, 0.15)):
         rng = np.random.default_rng(seed)
-        self.base = np.asarray(initial_action, dtype=np.float64)
+        self.base = np.array(initial_action, dtype=np.float64)  # a copy: callers pass a row of the env's last actions
         self.phase = rng.uniform(0, 2 * np.pi, (num_envs, 1))
         self.omega = 2 * np.pi / rng.uniform(*period_steps, (num_envs, 1))
         self.amplitude = rng.uniform(*amplitude, (num_envs, 1))
@@ -61,7 +61,7 @@ class RandomMotion:
     def __init__(self, initial_action: np.ndarray, num_envs: int, seed: int = 0,
                  amplitude: tuple[float, float] = (0.05, 0.3), correlation_steps: tuple[float, float] = (5.0, 40.0)):
         self.rng = np.random.default_rng(seed)
-        self.base = np.asarray(initial_action, dtype=np.float64)
+        self.base = np.array(initial_action, dtype=np.float64)  # a copy: callers pass a row of the env's last actions
         spread = self.rng.uniform(*amplitude, (num_envs, 1))
         self.keep = np.exp(-1.0 / self.rng.uniform(*correlation_steps, (num_envs, 1)))
         self.step_std = spread * np.sqrt(1.0 - self.keep ** 2)
