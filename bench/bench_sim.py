@@ -8,17 +8,24 @@ keeps); "raw replay" steps the same batch with the same controls and nothing els
 skin (readings with noise, positions) is timed on the env run's last state, the one whose
 contacts and active taxels the table reports. ``--hand real`` runs the hand of training
 (`training_env_config`: randomised physics, latencies, encoder effects, the real skin and its
-calibration) with the skin observed, as a blind policy's env.
+calibration) with the skin observed, as a blind policy's env. ``--actions policy`` drives the
+fingers with the shipped ground-truth policy (acting on the true state; its episodes end as
+training's do, ~1 % of env steps reset), ``wave`` (the default) with the scripted finger wave,
+whose balls fall within ~30 steps: a reset-heavy load. The table gives the mean episode length.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from dataclasses import replace
+
+import numpy as np
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, training_env_config
 from tacgnn.envs.scripted import FingerWave
+from tacgnn.learning.policy import SHIPPED_TEACHER, load_policy
 from tacgnn.user_errors import run_script
 
 
@@ -29,15 +36,23 @@ def timed(fn, repeats: int) -> float:
     return time.perf_counter() - start
 
 
-def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal") -> dict:
+def driver(env: BaodingEnv, kind: str) -> Callable[[], np.ndarray]:
+    """The next actions: the scripted wave's, or the shipped ground-truth policy's on the true state."""
+    if kind == "wave":
+        wave = FingerWave(env.last_action[0], env.num_envs, seed=0)
+        return lambda: wave(None)
+    act, _ = load_policy(SHIPPED_TEACHER)
+    return lambda: act(env.groundtruth_obs())
+
+
+def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive: str = "wave") -> dict:
     cfg = BaodingConfig() if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
     env = BaodingEnv(cfg)
-    obs, _ = env.reset(seed=0)
-    wave = FingerWave(env.last_action[0], num_envs, seed=0)
+    env.reset(seed=0)
+    next_actions = driver(env, drive)
     for _ in range(20):  # warm up, get contacts going
-        obs, *_ = env.step(wave(obs))
-    actions = [wave(None) for _ in range(steps)]
+        env.step(next_actions())
 
     # time the physics inside the env run: same states, same contacts, same resets
     physics = [0.0]
@@ -50,8 +65,13 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal") -> dic
         return out
 
     env.sim.step = timed_sim_step
-    it = iter(actions)
-    env_time = timed(lambda: env.step(next(it)), steps)
+    env_time, ended, actions = 0.0, 0, []
+    for _ in range(steps):
+        actions.append(next_actions())
+        start = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(actions[-1])
+        env_time += time.perf_counter() - start
+        ended += int((terminated | truncated).sum())
     env.sim.step = sim_step
     contacts = (env.tactile.contacts(env.sim.sensordata)[0] > 0).sum((1, 2)).mean()
     active = (env.tactile_readings() > 0).sum(1).mean()
@@ -69,7 +89,7 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal") -> dic
     raw_time = timed(raw_step, steps)
     n = num_envs * steps
     return {
-        "hand": hand, "envs": num_envs, "threads": nthread,
+        "hand": hand, "actions": drive, "envs": num_envs, "threads": nthread,
         "env steps/s": n / env_time,
         "physics steps/s in env": n * env.substeps / physics[0],
         "env physics steps/s": n * env.substeps / env_time,
@@ -77,7 +97,7 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal") -> dic
         "raw replay steps/s": n * env.substeps / raw_time,
         "readings us/step": 1e6 * readings_time / n,
         "positions us/step": 1e6 * positions_time / n,
-        "contacts/env": contacts, "active taxels/env": active,
+        "contacts/env": contacts, "active taxels/env": active, "steps/episode": n / max(ended, 1),
     }
 
 
@@ -88,8 +108,12 @@ def main() -> None:
     parser.add_argument("--threads", type=int, nargs="+", default=[2])
     parser.add_argument("--hand", choices=["nominal", "real"], nargs="+", default=["nominal", "real"],
                         help="the nominal hand, or the hand of training (randomised, the real skin observed)")
+    parser.add_argument("--actions", choices=["wave", "policy"], nargs="+", default=["wave", "policy"],
+                        help="the scripted finger wave (balls fall within ~30 steps), or the shipped "
+                             "ground-truth policy (episodes as in training)")
     args = parser.parse_args()
-    rows = [bench(n, args.steps, t, h) for h in args.hand for t in args.threads for n in args.envs]
+    rows = [bench(n, args.steps, t, h, a) for a in args.actions for h in args.hand for t in args.threads
+            for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
     fmt = {"env/physics": "{:.2f}"}
