@@ -65,8 +65,9 @@ def run(name: str, seed: int, dataset: Path, epochs: int) -> dict:
               "test_rmse_cm": test["position_rmse_cm"], "touched_rmse_cm": test["touched_rmse_cm"],
               "untouched_rmse_cm": test["untouched_rmse_cm"], "untouched_fraction": test["untouched_fraction"],
               "palm_lost_rmse_ratio": palm["rmse_ratio"], "paper_train_test_cm": PAPER.get(name),
-              "provenance": provenance({"perception": kept}, seed, {"epochs": epochs, "dataset": str(dataset),
-                                                                  "val_fraction": VAL_FRACTION, "record": RECORD})}
+              "provenance": provenance({"perception": kept.relative_to(ROOT)}, seed,
+                                       {"epochs": epochs, "dataset": str(dataset), "val_fraction": VAL_FRACTION,
+                                        "record": RECORD})}
     out = ROOT / "results" / "table2" / f"{name}_s{seed}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, json.dumps(result, indent=1))
