@@ -72,8 +72,8 @@ def main() -> None:
     data = {name: load_sequences(path) for name, path in datasets.items()}
     if args.split_of:
         run = load_checkpoint(args.split_of)
-        cfg = stored_config(PerceptionTrainConfig, run["config"], args.split_of, "config")
-        _, val, test = split_data(cfg, load_data(cfg, run["dataset"]["path"], cfg.max_samples))
+        run_cfg = stored_config(PerceptionTrainConfig, run["config"], args.split_of, "config")
+        _, val, test = split_data(run_cfg, load_data(run_cfg, run["dataset"]["path"], run_cfg.max_samples))
         if val is None:
             raise ConfigError(f"--split-of {args.split_of}: its run has no validation split (val_fraction=0)")
         data.update(validation=val, test=test)
