@@ -207,6 +207,32 @@ def test_resume_accepts_config_keys_added_since(run2, tmp_path):
         train(replace(ENV, track_balls=False), ppo(3), tmp_path / "run2", resume=True)
 
 
+def test_a_checkpoint_from_before_the_action_distribution_key_resumes_as_gaussian(run2, tmp_path):
+    shutil.copytree(run2, tmp_path / "run")
+    path = tmp_path / "run" / "model_000002.pt"
+    ckpt = torch.load(path, weights_only=True)
+    del ckpt["ppo_config"]["action_distribution"]
+    torch.save(ckpt, path)
+    assert train(ENV, ppo(3), tmp_path / "run", resume=True).name == "model_000003.pt"
+    with pytest.raises(ValueError, match="action_distribution"):
+        train(ENV, ppo(4, action_distribution="beta"), tmp_path / "run", resume=True)
+
+
+def test_a_beta_policy_acts_strictly_inside_the_range(run2, tmp_path):
+    """Whatever it reads, a Beta policy's mean action stays inside (-1, 1) (a Gaussian's is clipped
+    there), its file loads like any other, and a Gaussian checkpoint cannot start it."""
+    path = train(ENV, ppo(2, action_distribution="beta"), tmp_path / "beta")
+    act, _ = load_policy(path)
+    gaussian, _ = load_policy(run2 / "model_000002.pt")
+    dim = load_checkpoint(path)["obs_dim"]
+    obs = np.random.default_rng(0).normal(0.0, 1e3, (64, dim)).astype(np.float32)  # far outside training's
+    actions = act(obs)
+    assert actions.shape == (64, 16) and (np.abs(actions) < 1).all() and actions.std() > 0
+    assert (np.abs(gaussian(obs)) > 1).any()  # the Gaussian's mean leaves the range
+    with pytest.raises(CheckpointError, match="action_distribution"):
+        train(ENV, ppo(2, action_distribution="beta", init_from=str(run2 / "model_000002.pt")), tmp_path / "b2")
+
+
 def test_truncated_checkpoint_is_named(run2, tmp_path):
     shutil.copytree(run2, tmp_path / "run")
     path = tmp_path / "run" / "model_000002.pt"

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -14,7 +15,8 @@ from tacgnn.config import check, check_seed
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
 
 # PPO settings that fix the network's shape: a checkpoint cannot be resumed under others.
-ARCHITECTURE_KEYS = ("actor_hidden_dims", "critic_hidden_dims", "activation", "obs_normalization")
+ARCHITECTURE_KEYS = ("actor_hidden_dims", "critic_hidden_dims", "activation", "obs_normalization",
+                     "action_distribution")
 # Bounds that turn a typo (an extra zero or three) into an error at load time, not a crash mid-run.
 MAX_ENVS = 65_536
 MAX_THREADS = 1024
@@ -62,6 +64,12 @@ class PPOConfig:
     """Hidden activation: ELU as in the authors' code (the paper says ReLU)."""
     init_noise_std: float = 1.0
     """Initial std of the Gaussian policy, in action units ([-1, 1] spans a joint's range)."""
+    action_distribution: Literal["gaussian", "beta"] = "gaussian"
+    """The policy's action distribution. 'gaussian' (the authors'): samples are clipped to [-1, 1],
+    so a mean pushed past a bound acts at the bound whatever the costs say (no sample moves, no
+    gradient): the bang-bang drive. 'beta' (Chou et al. 2017, rsl_rl's `BetaDistribution`): bounded
+    by construction, its mean always inside the range, so the action-rate and effort costs keep a
+    gradient at the ends; `init_noise_std` does not apply (it starts near uniform)."""
     obs_normalization: bool = True
     """Normalise observations by running mean and std (actor and critic each keep one)."""
     reward_scale: float = 0.01
@@ -125,7 +133,9 @@ class PPOConfig:
         def model(dims: tuple[int, ...], stochastic: bool) -> dict[str, Any]:
             cfg = {"class_name": "rsl_rl.models:MLPModel", "hidden_dims": list(dims),
                    "activation": self.activation, "obs_normalization": self.obs_normalization}
-            if stochastic:
+            if stochastic and self.action_distribution == "beta":
+                cfg["distribution_cfg"] = {"class_name": "rsl_rl.modules:BetaDistribution"}
+            elif stochastic:
                 cfg["distribution_cfg"] = {"class_name": "rsl_rl.modules:GaussianDistribution",
                                            "init_std": self.init_noise_std, "std_type": "scalar"}
             return cfg
@@ -155,3 +165,9 @@ class PPOConfig:
             "actor": model(self.actor_hidden_dims, stochastic=True),
             "critic": model(self.critic_hidden_dims, stochastic=False),
         }
+
+
+def architecture_of(ppo: Mapping[str, Any]) -> dict[str, Any]:
+    """The `ARCHITECTURE_KEYS` of a stored PPO config; a key its version did not have yet has the
+    default it ran with."""
+    return {k: ppo.get(k, getattr(PPOConfig, k)) for k in ARCHITECTURE_KEYS}

@@ -32,7 +32,7 @@ from tacgnn.envs.baoding import BaodingConfig, training_env_config
 from tacgnn.files import FileProblem, atomic_write_text, remove_stale_temp_files
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning import distributed
-from tacgnn.learning.config import ARCHITECTURE_KEYS, PPOConfig
+from tacgnn.learning.config import PPOConfig, architecture_of
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.rsl_env import RslBaodingEnv
 from tacgnn.learning.runner import LOG_FILE, Runner
@@ -167,7 +167,7 @@ def _checkpoint_to_resume(run_dir: Path, env_cfg: BaodingConfig, ppo_cfg: PPOCon
 def _initial_weights(ppo_cfg: PPOConfig) -> dict:
     """The checkpoint named by init_from, if its networks have this run's shape."""
     start = ckpt.load_checkpoint(ppo_cfg.init_from)
-    stored = {k: start["ppo_config"].get(k) for k in ARCHITECTURE_KEYS}
+    stored = architecture_of(start["ppo_config"])
     wanted = to_dict(ppo_cfg)
     differing = [k for k in stored if stored[k] != wanted[k]]
     if differing:
