@@ -5,7 +5,8 @@
 
 On the nominal hand (randomisation off, the policy's skin) and Simple unless `--set` says otherwise,
 every control step of every episode until each env has finished one:
-* actions at +-1: the share of finger actions (index, middle, ring: 12 joints) with |a| >= 0.999;
+* actions at +-1: the share of finger actions (index, middle, ring: 12 joints) with |a| >= 0.999,
+  and near it, |a| >= 0.95 (a policy whose mean cannot reach +-1, a Beta one, may still sit next to it);
 * joint-steps at the torque limit: the share of finger joints whose actuator force is within 0.1 %
   of its limit, at every physics substep;
 the thumb (nearly frozen in the Baoding task) is reported apart. The hand-ball force is the
@@ -50,11 +51,12 @@ def measure(policy, cfg, episodes: int, perception=None) -> dict:
     env.sim.step = counted
     obs, _ = env.reset(seed=123)
     done = np.zeros(env.num_envs, bool)
-    saturated, actions_seen = np.zeros(16), 0
+    saturated, near_end, actions_seen = np.zeros(16), np.zeros(16), 0
     success = np.zeros(env.num_envs, bool)
     while not done.all():
         action = np.clip(policy(obs), -1, 1)
         saturated += (np.abs(action[~done]) >= 0.999).sum(0)
+        near_end += (np.abs(action[~done]) >= 0.95).sum(0)
         actions_seen += int((~done).sum())
         obs, _, term, trunc, info = env.step(action)
         newly = (term | trunc) & ~done
@@ -63,6 +65,7 @@ def measure(policy, cfg, episodes: int, perception=None) -> dict:
     return {"episodes": episodes, "success": float(success.mean()),
             "finger_actions_at_limit": float(saturated[FINGERS].sum() / (12 * actions_seen)),
             "thumb_actions_at_limit": float(saturated[THUMB].sum() / (4 * actions_seen)),
+            "finger_actions_beyond_0.95": float(near_end[FINGERS].sum() / (12 * actions_seen)),
             "finger_joint_steps_at_torque_limit": float(at_limit[FINGERS].sum() / (12 * substeps)),
             "thumb_joint_steps_at_torque_limit": float(at_limit[THUMB].sum() / (4 * substeps))}
 
