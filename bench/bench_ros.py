@@ -15,6 +15,8 @@ the same process, no ROS and no clock: what the ROS loop must reproduce.
 
 Needs ROS 1 (`make test-ros` installs Debian's ROS 1 and links rospy into the venv).
 """
+from __future__ import annotations
+
 import argparse
 import json
 import os
@@ -24,13 +26,19 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tacgnn.files import atomic_write_text
 from tacgnn.real.loopback_master import free_port, loopback_env, start_roscore, stop_roscore
 from tacgnn.user_errors import run_script
+
+if TYPE_CHECKING:
+    from tacgnn.envs.baoding import BaodingConfig
+    from tacgnn.real.sim_hand import SimHand
 
 
 def busy_processes(seconds: float = 2.0, min_cpu: float = 10.0) -> list[dict]:
@@ -75,8 +83,13 @@ def make_calibration(folder: Path, policy: str) -> Path:
     return calibrate(rest, env_config.skin).save(folder / "calibration.npz")
 
 
-def reference(policy: str, calibration: Path, task: str, episodes: int, seed: int) -> dict:
-    """The same episodes with the controller in this process, no ROS: each command applied at the next step."""
+def reference(policy: str, calibration: Path, task: str, episodes: int, seed: int,
+              env_change: Callable[[BaodingConfig], BaodingConfig] | None = None,
+              on_episode: Callable[[SimHand, bool], None] | None = None) -> dict:
+    """The same episodes with the controller in this process, no ROS: each command applied at the next step.
+
+    `env_change` edits the policy's env config for the simulated hand and the skin processor (e.g. a
+    skin whose baseline does not track); `on_episode(hand, success)` is called as each episode ends."""
     import torch
 
     from tacgnn.envs.observation import target_to_action
@@ -87,8 +100,9 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
 
     torch.set_num_threads(1)
     controller = BlindController(BlindControllerConfig(policy=policy))
-    processor = SkinProcessor.for_env(SkinCalibration.load(calibration), controller.env_config)
-    hand = SimHand(controller.env_config, SimHandConfig(task=task, episodes=episodes, seed=seed), RosConfig())
+    env_config = controller.env_config if env_change is None else env_change(controller.env_config)
+    processor = SkinProcessor.for_env(SkinCalibration.load(calibration), env_config)
+    hand = SimHand(env_config, SimHandConfig(task=task, episodes=episodes, seed=seed), RosConfig())
     env = hand.env
     env.reset(seed=seed)
     low, high = env.joint_low, env.joint_high
@@ -104,6 +118,8 @@ def reference(policy: str, calibration: Path, task: str, episodes: int, seed: in
         if terminated[0] or truncated[0]:
             wins += bool(info["success"][0])
             done += 1
+            if on_episode is not None:
+                on_episode(hand, bool(info["success"][0]))
             stepped = False
             controller.reset(env.joint_pos[0].copy())
         else:

@@ -22,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.files import atomic_write_text
-from tacgnn.learning import policy as policy_module
+from tacgnn.learning.policy import SHIPPED_POLICY
 from tacgnn.provenance import provenance
-from tacgnn.real import sim_hand
+from tacgnn.real.sim_hand import SimHand
 from tacgnn.user_errors import run_script
 
 _spec = importlib.util.spec_from_file_location("bench_ros", Path(__file__).parents[2] / "bench" / "bench_ros.py")
@@ -35,31 +36,21 @@ _spec.loader.exec_module(bench_ros)  # type: ignore[union-attr]
 
 def session(policy: str, episodes: int, block: int, tracking: bool) -> list[dict]:
     """Success and drift per block of `block` episodes of one session."""
-    load = policy_module.load_policy
-
-    def with_tracking(path, *a, **kw):  # the policy as trained, or with the baseline fixed
-        actor, env = load(path, *a, **kw)
-        return actor, env if tracking else replace(env, skin_signal=replace(env.skin_signal, baseline_tracking=0.0))
-
     wins: list[bool] = []
     rows: list[dict] = []
-    step = sim_hand.SimHand.step
 
-    def counted(self, action):
-        out = step(self, action)
-        if out[2][0] or out[3][0]:
-            wins.append(bool(out[4]["success"][0]))
-            if len(wins) % block == 0:
-                rows.append({"episodes": len(wins), "success": float(np.mean(wins[-block:])),
-                             "drift_mean_abs_n": float(np.abs(self.env.skin_signal.drift[0]).mean())})
-        return out
+    def fixed_baseline(env: BaodingConfig) -> BaodingConfig:
+        return replace(env, skin_signal=replace(env.skin_signal, baseline_tracking=0.0))
 
-    policy_module.load_policy, sim_hand.SimHand.step = with_tracking, counted
-    try:
-        calibration = bench_ros.make_calibration(Path(tempfile.mkdtemp()), policy)
-        total = bench_ros.reference(policy, calibration, "simple", episodes, 0)
-    finally:
-        policy_module.load_policy, sim_hand.SimHand.step = load, step
+    def count(hand: SimHand, success: bool) -> None:
+        wins.append(success)
+        if len(wins) % block == 0:
+            rows.append({"episodes": len(wins), "success": float(np.mean(wins[-block:])),
+                         "drift_mean_abs_n": float(np.abs(hand.env.skin_signal.drift[0]).mean())})
+
+    calibration = bench_ros.make_calibration(Path(tempfile.mkdtemp()), policy)
+    total = bench_ros.reference(policy, calibration, "simple", episodes, 0,
+                                env_change=None if tracking else fixed_baseline, on_episode=count)
     print(f"tracking {'on' if tracking else 'off'}: {total['success_rate']:.3f} of {episodes}; per block of "
           f"{block}: " + ", ".join(f"{r['success']:.2f}" for r in rows))
     return rows + [{"episodes": episodes, "success_total": total["success_rate"]}]
@@ -67,7 +58,7 @@ def session(policy: str, episodes: int, block: int, tracking: bool) -> list[dict
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--policy", default=str(policy_module.SHIPPED_POLICY))
+    parser.add_argument("--policy", default=str(SHIPPED_POLICY))
     parser.add_argument("--episodes", type=int, default=256)
     parser.add_argument("--block", type=int, default=32)
     parser.add_argument("--out", default="results/real_hand/drift_session.json")
