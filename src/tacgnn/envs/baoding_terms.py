@@ -44,9 +44,7 @@ def spawn_overlaps(model: Any, scratch: Any, qpos: np.ndarray, ball_geom: np.nda
     near = d.contact.dist[:d.ncon] < clearance
     if not near.any():
         return False
-    is_ball = np.zeros(m.ngeom, bool)
-    is_ball[ball_geom] = True
-    return bool(is_ball[d.contact.geom[:d.ncon][near]].any())
+    return bool(np.isin(d.contact.geom[:d.ncon][near], ball_geom).any())
 
 
 # --- the angle ---------------------------------------------------------------------------
