@@ -88,7 +88,7 @@ def main() -> None:
 
     ckpt = Path(args.run) / "checkpoint.pt"
     model, cfg, _ = load_model(ckpt)
-    data = load_sequences(args.dataset, cfg.max_frames)
+    data = load_sequences(args.dataset, cfg.max_samples)
     train, test = split_by_episode(data, cfg.train_fraction, cfg.seed)
     if args.cache and Path(args.cache).exists():
         pred = torch.load(args.cache)
@@ -143,8 +143,8 @@ def main() -> None:
     other_se = None
     if args.compare:
         other, other_cfg, _ = load_model(Path(args.compare) / "checkpoint.pt")
-        if (other_cfg.seed, other_cfg.train_fraction, other_cfg.max_frames) != (cfg.seed, cfg.train_fraction,
-                                                                                 cfg.max_frames):
+        if (other_cfg.seed, other_cfg.train_fraction, other_cfg.max_samples) != (cfg.seed, cfg.train_fraction,
+                                                                                 cfg.max_samples):
             raise ConfigError(f"--compare {args.compare}: another split than {args.run}")
         other_se = ball_errors_since_touch(predict(other, test), test, other_cfg.match_balls)[0]
         report["compare"] = args.compare

@@ -136,7 +136,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    loaded: dict[int, SequenceData] = {}  # by max_frames: the dataset is read once
+    loaded: dict[int, SequenceData] = {}  # by max_samples: the dataset is read once
     results = {}
     outputs: list[tuple[torch.Tensor, object, SequenceData]] = []  # for --ensemble
     for run in args.runs:
@@ -144,9 +144,9 @@ def main() -> None:
         model, cfg, _ = load_model(ckpt)
         payload = load_checkpoint(ckpt)
         history, trained_on = payload["history"], payload.get("dataset", {}).get("path", args.dataset)
-        if cfg.max_frames not in loaded:
-            loaded[cfg.max_frames] = load_sequences(args.dataset, cfg.max_frames)
-        train_set, test_set = split_by_episode(loaded[cfg.max_frames], cfg.train_fraction, cfg.seed)
+        if cfg.max_samples not in loaded:
+            loaded[cfg.max_samples] = load_sequences(args.dataset, cfg.max_samples)
+        train_set, test_set = split_by_episode(loaded[cfg.max_samples], cfg.train_fraction, cfg.seed)
         pred = predict(model, test_set)
         outputs.append((pred, cfg, test_set))
         metrics = frame_metrics(pred, cfg, test_set)
@@ -207,7 +207,7 @@ def ensemble(outputs: list, runs: list[str]) -> dict:
     first, cfg, data = outputs[0]
     for *_, other in outputs[1:]:
         if not torch.equal(other.episode, data.episode) or not torch.equal(other.step, data.step):
-            raise ConfigError("--ensemble: the runs were tested on different episodes (another split or max_frames)")
+            raise ConfigError("--ensemble: the runs were tested on different episodes (another split or max_samples)")
     aligned = [torch.from_numpy(track_ball_identities(pred.numpy(), first.numpy())) for pred, _, _ in outputs]
     mean = torch.stack(aligned).mean(0)
     return {"runs": list(runs), **frame_metrics(mean, cfg, data),
