@@ -25,8 +25,8 @@ from tacgnn.perception.checkpoint import stored_config
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
-"""The blind policy the demo and the real-hand controller run: a temporal TacGNN in the loop, trained
-on hands drawn as real ones differ and on the real skin (docs/results.md, section 11)."""
+"""The blind policy the demo and the real-hand controller run: Beta actions, a temporal TacGNN in the
+loop, trained on hands drawn as real ones differ and on the real skin (docs/results.md, section 11)."""
 SHIPPED_TEACHER = ASSETS / "baoding_gt_policy.pt"
 """The ground-truth policy shipped beside it (true ball positions), its teacher, trained on the same
 hands (`experiments/real_hand/pipeline.sh`)."""
