@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Independent ground-truth teachers for the perception mix: the shipped teacher's first three
-# stages (experiments/real_hand/pipeline.sh: Simple on the nominal hand 300 it., the 1 s hold on the
-# nominal hand 300, the hold on the randomised hand with the soft costs 400) from scratch with
+# Independent ground-truth teachers for the perception mix: the first three stages of the teacher
+# recipe (experiments/real_hand/pipeline.sh, with the authors' Gaussian actions: Simple on the nominal
+# hand 300 it., the 1 s hold on the nominal hand 300, the hold on the randomised hand with the soft
+# costs 400) from scratch with
 # another seed, so that their grips owe nothing to the teachers already in the mix. About 25
 # minutes per seed on 2 cores (twice that with two seeds at once).
 #
