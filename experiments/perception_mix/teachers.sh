@@ -2,9 +2,9 @@
 # Independent ground-truth teachers for the perception mix: the first three stages of the teacher
 # recipe (experiments/real_hand/pipeline.sh, with the authors' Gaussian actions: Simple on the nominal
 # hand 300 it., the 1 s hold on the nominal hand 300, the hold on the randomised hand with the soft
-# costs 400) from scratch with
-# another seed, so that their grips owe nothing to the teachers already in the mix. About 25
-# minutes per seed on 2 cores (twice that with two seeds at once).
+# costs 400) from scratch with another seed, so that their grips owe nothing to the teachers already
+# in the mix. About 25 minutes per seed on 2 cores (twice that with two seeds at once); seed 1 did
+# not learn Simple in 300 it., seed 2's hold stage never held (its Simple stage is in the mix).
 #
 #   experiments/perception_mix/teachers.sh SEED   ->  runs/mix_teacher_sSEED/hold/model_000400.pt
 set -euo pipefail
