@@ -192,30 +192,32 @@ def test_resume_with_another_obs_mode_names_it(run2, tmp_path):
               tmp_path / "run", resume=True)
 
 
+def _run_without(run2, folder, section: str, key: str):
+    """A copy of `run2` in `folder` whose checkpoint's `section` config lacks `key` (written before
+    the key existed); returns that folder."""
+    shutil.copytree(run2, folder)
+    path = folder / "model_000002.pt"
+    ckpt = torch.load(path, weights_only=True)
+    del ckpt[section][key]
+    torch.save(ckpt, path)
+    return folder
+
+
 def test_resume_accepts_config_keys_added_since(run2, tmp_path):
     """A checkpoint written before an env key existed resumes under that key's default, and not
     under another value."""
-    shutil.copytree(run2, tmp_path / "run")
-    path = tmp_path / "run" / "model_000002.pt"
-    ckpt = torch.load(path, weights_only=True)
-    del ckpt["env_config"]["track_balls"]
-    torch.save(ckpt, path)
-    assert train(ENV, ppo(3), tmp_path / "run", resume=True).name == "model_000003.pt"
-    shutil.copytree(run2, tmp_path / "run2")
-    torch.save(ckpt, tmp_path / "run2" / "model_000002.pt")
+    run = _run_without(run2, tmp_path / "run", "env_config", "track_balls")
+    assert train(ENV, ppo(3), run, resume=True).name == "model_000003.pt"
     with pytest.raises(ValueError, match="track_balls"):
-        train(replace(ENV, track_balls=False), ppo(3), tmp_path / "run2", resume=True)
+        train(replace(ENV, track_balls=False), ppo(3), _run_without(run2, tmp_path / "run2", "env_config",
+                                                                    "track_balls"), resume=True)
 
 
 def test_a_checkpoint_from_before_the_action_distribution_key_resumes_as_gaussian(run2, tmp_path):
-    shutil.copytree(run2, tmp_path / "run")
-    path = tmp_path / "run" / "model_000002.pt"
-    ckpt = torch.load(path, weights_only=True)
-    del ckpt["ppo_config"]["action_distribution"]
-    torch.save(ckpt, path)
-    assert train(ENV, ppo(3), tmp_path / "run", resume=True).name == "model_000003.pt"
+    run = _run_without(run2, tmp_path / "run", "ppo_config", "action_distribution")
+    assert train(ENV, ppo(3), run, resume=True).name == "model_000003.pt"
     with pytest.raises(ValueError, match="action_distribution"):
-        train(ENV, ppo(4, action_distribution="beta"), tmp_path / "run", resume=True)
+        train(ENV, ppo(4, action_distribution="beta"), run, resume=True)
 
 
 def test_a_beta_policy_acts_strictly_inside_the_range(run2, tmp_path):
