@@ -40,7 +40,7 @@ def bench(num_envs: int, iters: int, tactile: bool) -> dict:
             return out
         return wrapper
 
-    env.step = timed("env", env.step)
+    env.step = timed("env", env.step)  # type: ignore[method-assign]
     runner.alg.update = timed("update", runner.alg.update)
     runner.learn(2)  # warm up: first contacts, allocator, normaliser
     spent.update(env=0.0, update=0.0)

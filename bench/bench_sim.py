@@ -45,8 +45,10 @@ def driver(env: BaodingEnv, kind: str) -> Callable[[], np.ndarray]:
     return lambda: act(env.groundtruth_obs())
 
 
-def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive: str = "wave") -> dict:
-    cfg = BaodingConfig() if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
+def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive: str = "wave",
+          nominal: BaodingConfig | None = None) -> dict:
+    """One row of the table; `nominal` replaces the nominal hand's config (e.g. another reward)."""
+    cfg = (nominal or BaodingConfig()) if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
     env = BaodingEnv(cfg)
     env.reset(seed=0)

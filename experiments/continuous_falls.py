@@ -43,8 +43,8 @@ def summarise(r: dict, window: int) -> dict:
     cfg = r["config"]
     n, dt = len(r["fell"]), cfg.control_dt
     fell = np.flatnonzero(r["fell"])
-    rules = classify(r["end_palm"], cfg.fall_height, cfg.fall_radius)[fell]  # (F, 2, 3)
-    broke = rules.any(-1)  # (F, 2) which ball left
+    rules = np.asarray(classify(r["end_palm"], cfg.fall_height, cfg.fall_radius))[fell]  # (F, 2, 3)
+    broke = np.asarray(rules.any(-1))  # (F, 2) which ball left
     turns = np.array([a[~np.isnan(a)][-1] / 360 for a in r["angles"].T])
     out: dict = {
         "episodes": n, "falls": len(fell), "fall_rate": len(fell) / n,

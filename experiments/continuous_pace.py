@@ -128,7 +128,7 @@ def rollout(checkpoint: str, episodes: int, seed: int, changes: dict) -> dict:
             tau[t * sub + s, live] = env.sim.actuator_force[live][:, :16]
         return bad
 
-    env.sim.step = stepped  # type: ignore[method-assign]
+    env.sim.step = stepped
     obs, _ = env.reset(seed=seed)
     for t in range(limit):
         a = np.clip(policy(obs), -1, 1)

@@ -93,7 +93,7 @@ def run_config(task: str, model: str, channels: int, seed: int, args, max_sample
 
 
 def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = -1,
-        joints: int = 0) -> dict:
+        joints: int = 0) -> dict | None:
     max_samples = args.max_samples.get(task, 0) if max_samples < 0 else max_samples
     name = (f"{model}-{channels}" if model == "tacgnn" else model) + ("-joints" if joints else "")
     setup = "paper" if args.paper_setup else "ours"
@@ -224,10 +224,10 @@ def main() -> None:
 
     # Table II: ball positions
     # the paper's rows, then beyond the paper: the same models reading the hand's 16 joint angles too
-    models = [("mlp", 32, 0), ("cnn", 32, 0), ("gcn", 32, 0), ("tacgnn", 32, 0), ("tacgnn", 16, 0), ("tacgnn", 64, 0),
-              ("tacgnn", 128, 0), ("mlp", 32, 16), ("tacgnn", 32, 16)]
+    table2_models = [("mlp", 32, 0), ("cnn", 32, 0), ("gcn", 32, 0), ("tacgnn", 32, 0), ("tacgnn", 16, 0),
+                     ("tacgnn", 64, 0), ("tacgnn", 128, 0), ("mlp", 32, 16), ("tacgnn", 32, 16)]
     table2 = {}
-    for model, ch, joints in models:
+    for model, ch, joints in table2_models:
         table2[(model, ch, joints)] = [r for s in seeds
                                        if (r := run("baoding", model, ch, s, data["baoding"], args, joints=joints))]
     lines += ["## Table II: ball positions (RMSE, cm)", "",
@@ -292,6 +292,10 @@ def chosen(models, args) -> list[tuple[str, int]]:
     return [(m, ch) for m, ch in models if not args.models or row_label(m, ch) in args.models]
 
 
+def _rmse_cell(result: dict | None) -> str:
+    return f"{result['final']['test/position_rmse_cm']:.3f}" if result else "not run"
+
+
 def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
     """Ball-position test RMSE against the number of Baoding frames (seed 0): does more data
     change the ranking? Sizes 2,500, 5,000, 10,000, --baoding-samples and the whole dataset."""
@@ -304,8 +308,7 @@ def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
     lines = ["", "## Does more data change the ranking? (ball positions, seed 0, test RMSE cm)", "",
              "| frames | " + " | ".join(curve) + " |", "|---|" + "---|" * len(curve)]
     for i, n in enumerate(sizes):
-        lines.append(f"| {n} | " + " | ".join(f"{curve[m][i]['final']['test/position_rmse_cm']:.3f}"
-                                              if curve[m][i] else "not run" for m in curve) + " |")
+        lines.append(f"| {n} | " + " | ".join(_rmse_cell(curve[m][i]) for m in curve) + " |")
     return lines
 
 

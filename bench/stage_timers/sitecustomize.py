@@ -44,7 +44,7 @@ if OUT and "real-hand" in sys.argv and "run" in sys.argv:
         out = tick_call(self)
         current["tick_body"] = clock() - start
         return out
-    tick.ControlTick.__call__ = timed_tick
+    tick.ControlTick.__call__ = timed_tick  # type: ignore[method-assign]
     timed(tick, "decode_joint_state", "decode_joint_state")
     timed(tick, "decode_tactile", "decode_skin")
     timed(skin.SkinProcessor, "__call__", "skin_calibration")
@@ -76,6 +76,7 @@ if OUT and "real-hand" in sys.argv and "run" in sys.argv:
         summary = {s: {f"p{q}": round(1e3 * float(np.percentile([t.get(s, 0.0) for t in kept], q)), 3)
                        for q in (50, 90, 99, 100)} for s in stages}
         slow = sorted(kept, key=lambda t: -t["tick_start_to_published"])[:20]
+        assert OUT is not None  # set: this module only loads under TACGNN_STAGE_TIMERS
         with open(OUT, "w") as f:
             json.dump({"ticks": len(kept), "stages_ms": summary,
                        "slowest_ticks_ms": [{k: round(1e3 * v, 2) for k, v in t.items()} for t in slow]}, f, indent=1)

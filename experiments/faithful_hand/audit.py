@@ -67,9 +67,11 @@ def audit(policy, cfg: BaodingConfig, episodes: int, perception=None) -> dict:
     patch_of_body = {m.body(p.body).id: k for k, p in enumerate(cfg.skin.patches)}
     offsets = cfg.skin.offsets()
     quiet = TactileModel(replace(cfg.skin, noise=0.0), m)
-    pen, forces, tmax = [], [], 0.0
+    pen: list[float] = []
+    forces: list[float] = []
+    tmax = 0.0
     skinned_force, read_force = 0.0, 0.0
-    per_contact = []  # (patch type, force, activated taxels) of patches touched by one contact
+    per_contact: list[tuple] = []  # (patch type, force, activated taxels) of patches touched by one contact
     orig_step = env.sim.step
 
     def stepped(nstep: int) -> np.ndarray:
@@ -136,7 +138,7 @@ def audit(policy, cfg: BaodingConfig, episodes: int, perception=None) -> dict:
                         "by_force": {f"{lo}-{hi}": float(np.median(rows[(rows[:, 0] >= lo) & (rows[:, 0] < hi), 1]))
                                      for lo, hi in zip(edges[:-1], edges[1:])
                                      if ((rows[:, 0] >= lo) & (rows[:, 0] < hi)).any()}}
-    forces = np.asarray(forces)
+    force_n = np.asarray(forces)
     return {
         "episodes": episodes,
         "torque_limit": cfg.hand.torque_limit,
@@ -144,9 +146,9 @@ def audit(policy, cfg: BaodingConfig, episodes: int, perception=None) -> dict:
         "penetration_mm_p99": float(np.percentile(pen_mm, 99)) if len(pen_mm) else 0.0,
         "penetration_mm_max": float(pen_mm.max()) if len(pen_mm) else 0.0,
         "ball_link_contacts": len(pen_mm),
-        "normal_force_p99": float(np.percentile(forces, 99)) if len(forces) else 0.0,
-        "normal_force_max": float(forces.max()) if len(forces) else 0.0,
-        "normal_force_median": float(np.median(forces)) if len(forces) else 0.0,
+        "normal_force_p99": float(np.percentile(force_n, 99)) if len(force_n) else 0.0,
+        "normal_force_max": float(force_n.max()) if len(force_n) else 0.0,
+        "normal_force_median": float(np.median(force_n)) if len(force_n) else 0.0,
         # taxel readings against the hand-ball normal force on skinned links pressed by balls only,
         # covered or not (contacts on a link's bare edges count against the skin)
         "skin_share_of_skinned_link_force": read_force / skinned_force if skinned_force else None,

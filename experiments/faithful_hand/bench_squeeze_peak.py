@@ -25,14 +25,14 @@ def main() -> None:
     args = ap.parse_args()
     path = Path(__file__).resolve().parents[2] / "bench" / "bench_sim.py"
     spec = importlib.util.spec_from_file_location("bench_sim", path)
+    assert spec is not None and spec.loader is not None, path
     bench_sim = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench_sim)
     best: dict[bool, float] = {False: 0.0, True: 0.0}
     for _ in range(args.rounds):
         for peak in (False, True):
-            bench_sim.BaodingConfig = lambda num_envs, peak=peak: replace(  # type: ignore[misc]
-                BaodingConfig(num_envs=num_envs), reward=RewardConfig(squeeze_peak=peak))
-            row = bench_sim.bench(args.envs, args.steps, 2)
+            config = replace(BaodingConfig(), reward=RewardConfig(squeeze_peak=peak))
+            row = bench_sim.bench(args.envs, args.steps, 2, nominal=config)
             best[peak] = max(best[peak], row["env steps/s"])
             print(f"squeeze_peak={peak}: {row['env steps/s']:.0f} env steps/s", flush=True)
     print(f"best of {args.rounds}: end of step {best[False]:.0f}, peak over substeps {best[True]:.0f} "
