@@ -29,7 +29,7 @@ import torch
 from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.files import atomic_write, read_weights
-from tacgnn.learning.config import ARCHITECTURE_KEYS, PPOConfig, architecture_of
+from tacgnn.learning.config import PPOConfig, architecture_differences
 
 FORMAT_VERSION = 2
 """2: the perception inside holds its whole config (no key left to defaults) and its per-env state,
@@ -152,8 +152,7 @@ def check_compatible(checkpoint: dict[str, Any], env_cfg: BaodingConfig, ppo_cfg
     (obs_mode, skin, ...), the saved env state only fits the same envs, physics and task.
     """
     diffs = differences(to_dict(stored_env_config(checkpoint, path)), to_dict(env_cfg))
-    stored_ppo, wanted_ppo = architecture_of(checkpoint["ppo_config"]), to_dict(ppo_cfg)
-    diffs += [(f"ppo.{k}", stored_ppo[k], wanted_ppo[k]) for k in ARCHITECTURE_KEYS if stored_ppo[k] != wanted_ppo[k]]
+    diffs += [(f"ppo.{k}", old, new) for k, old, new in architecture_differences(checkpoint["ppo_config"], ppo_cfg)]
     _raise_on(diffs, f"checkpoint {path} does not match the requested config")
 
 

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from tacgnn.config import check, check_seed
+from tacgnn.config import check, check_seed, to_dict
 
 Activation = Literal["elu", "selu", "relu", "crelu", "lrelu", "tanh", "sigmoid", "softplus", "gelu", "swish", "mish"]
 
@@ -167,7 +167,10 @@ class PPOConfig:
         }
 
 
-def architecture_of(ppo: Mapping[str, Any]) -> dict[str, Any]:
-    """The `ARCHITECTURE_KEYS` of a stored PPO config; a key its version did not have yet has the
+def architecture_differences(stored: Mapping[str, Any], cfg: PPOConfig) -> list[tuple[str, Any, Any]]:
+    """(key, stored, wanted) for each of `ARCHITECTURE_KEYS` where a stored PPO config (a
+    checkpoint's) and `cfg` differ; a key the stored config's version did not have yet has the
     default it ran with."""
-    return {k: ppo.get(k, getattr(PPOConfig, k)) for k in ARCHITECTURE_KEYS}
+    wanted = to_dict(cfg)
+    return [(k, stored.get(k, getattr(PPOConfig, k)), wanted[k]) for k in ARCHITECTURE_KEYS
+            if stored.get(k, getattr(PPOConfig, k)) != wanted[k]]

@@ -32,7 +32,7 @@ from tacgnn.envs.baoding import BaodingConfig, training_env_config
 from tacgnn.files import FileProblem, atomic_write_text, remove_stale_temp_files
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning import distributed
-from tacgnn.learning.config import PPOConfig, architecture_of
+from tacgnn.learning.config import PPOConfig, architecture_differences
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.learning.rsl_env import RslBaodingEnv
 from tacgnn.learning.runner import LOG_FILE, Runner
@@ -167,12 +167,11 @@ def _checkpoint_to_resume(run_dir: Path, env_cfg: BaodingConfig, ppo_cfg: PPOCon
 def _initial_weights(ppo_cfg: PPOConfig) -> dict:
     """The checkpoint named by init_from, if its networks have this run's shape."""
     start = ckpt.load_checkpoint(ppo_cfg.init_from)
-    stored = architecture_of(start["ppo_config"])
-    wanted = to_dict(ppo_cfg)
-    differing = [k for k in stored if stored[k] != wanted[k]]
+    differing = architecture_differences(start["ppo_config"], ppo_cfg)
     if differing:
-        raise ckpt.CheckpointError(f"init_from {ppo_cfg.init_from}: its networks differ in {differing} "
-                                   f"({', '.join(f'{k} {stored[k]} != {wanted[k]}' for k in differing)})")
+        keys = [k for k, *_ in differing]
+        raise ckpt.CheckpointError(f"init_from {ppo_cfg.init_from}: its networks differ in {keys} "
+                                   f"({', '.join(f'{k} {old} != {new}' for k, old, new in differing)})")
     return start
 
 
