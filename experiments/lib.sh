@@ -6,13 +6,14 @@ resume() { compgen -G "$1/model_*.pt" >/dev/null && echo --resume || true; }
 # last RUN_DIR ITERATIONS: the checkpoint written after that many iterations
 last() { printf "%s/model_%06d.pt" "$1" "$2"; }
 # train_gt RUN ITERATIONS PARENT ENV_SETTINGS PPO_SETTINGS: a ground-truth policy (true ball
-# positions, no skin) trained to ITERATIONS with seed 0, starting from PARENT's networks ('' = from
-# scratch); skipped when RUN has that checkpoint, resumed when it holds an earlier one
+# positions, no skin) trained to ITERATIONS with seed $SEED (default 0; the env's and PPO's), starting
+# from PARENT's networks ('' = from scratch); skipped when RUN has that checkpoint, resumed when it
+# holds an earlier one
 train_gt() {
   local run=$1 iters=$2 parent=$3 env=$4 ppo=$5
   [ -f "$(last $run $iters)" ] && return 0
-  .venv/bin/tacgnn train-policy --run-dir $run $(resume $run) --env tactile=false $env --ppo max_iterations=$iters \
-    seed=0 $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
+  .venv/bin/tacgnn train-policy --run-dir $run $(resume $run) --env tactile=false seed=${SEED:-0} $env \
+    --ppo max_iterations=$iters seed=${SEED:-0} $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
 }
 # perception_run RUN EPOCHS ARG...: `tacgnn train-perception --run RUN --epochs EPOCHS ARG...`, skipped
 # when RUN finished those epochs, resumed when RUN holds a checkpoint

@@ -10,22 +10,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 S=${1:?usage: teachers.sh SEED}
-source experiments/lib.sh  # resume, last, stage
+export SEED=$S  # train_gt's seed
+source experiments/lib.sh  # train_gt, last, stage
 SOFT="reward.squeeze=-0.05 reward.squeeze_free_force=5.0 reward.squeeze_peak=true reward.squeeze_tail=-0.2 \
 reward.squeeze_tail_force=8.0 reward.action_rate=-0.005 reward.effort=-0.02"
-FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
+FINE="save_interval=50 init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
 R=runs/mix_teacher_s$S
-# teacher RUN ITERATIONS PARENT ENV_SETTINGS PPO_SETTINGS: train_gt of experiments/lib.sh with seed S
-teacher() {
-  local run=$1 iters=$2 parent=$3 env=$4 ppo=$5
-  [ -f "$(last $run $iters)" ] && return 0
-  .venv/bin/tacgnn train-policy --run-dir $run $(resume $run) --env tactile=false seed=$S $env \
-    --ppo max_iterations=$iters seed=$S save_interval=50 $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
-}
 stage "teacher seed $S: Simple, nominal hand"
-teacher $R/simple 300 "" randomization.enabled=false ""
+train_gt $R/simple 300 "" randomization.enabled=false save_interval=50
 stage "teacher seed $S: hold, nominal hand"
-teacher $R/nominal_hold 300 "$(last $R/simple 300)" "task=hold randomization.enabled=false" "$FINE"
+train_gt $R/nominal_hold 300 "$(last $R/simple 300)" "task=hold randomization.enabled=false" "$FINE"
 stage "teacher seed $S: hold, randomised hand"
-teacher $R/hold 400 "$(last $R/nominal_hold 300)" "task=hold $SOFT" "$FINE"
+train_gt $R/hold 400 "$(last $R/nominal_hold 300)" "task=hold $SOFT" "$FINE"
 stage done

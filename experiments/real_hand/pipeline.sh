@@ -27,26 +27,19 @@ R=runs/real_gt
 TEACHER=${1:-$R/hold_slow/model_000500.pt}
 BLIND_AT=${2:-400}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last, perception_run, stage
+source experiments/lib.sh  # resume, last, train_gt, perception_run, stage
 SOFT="reward.squeeze=-0.05 reward.squeeze_free_force=5.0 reward.squeeze_peak=true reward.squeeze_tail=-0.2 \
 reward.squeeze_tail_force=8.0 reward.action_rate=-0.005 reward.effort=-0.02"
-FINE="learning_rate=0.0003 schedule=fixed"
-SLOW="learning_rate=0.0001 schedule=fixed"
+BETA="save_interval=50 action_distribution=beta"
+FINE="$BETA learning_rate=0.0003 schedule=fixed"
+SLOW="$BETA learning_rate=0.0001 schedule=fixed"
 WIDE="randomization.joint_common=0.5"
-# teacher RUN ITERATIONS PARENT ENV_SETTINGS PPO_SETTINGS: a Beta ground-truth policy, seed 0
-teacher() {
-  local run=$1 iters=$2 parent=$3 env=$4 ppo=$5
-  [ -f "$(last $run $iters)" ] && return 0
-  $T train-policy --run-dir $run $(resume $run) --env tactile=false seed=0 $env \
-    --ppo max_iterations=$iters seed=0 save_interval=50 action_distribution=beta \
-    $( [ -n "$parent" ] && echo init_from=$parent ) $ppo
-}
 stage teacher
-teacher $R/simple 300 "" randomization.enabled=false ""
-teacher $R/nominal_hold 300 "$(last $R/simple 300)" "task=hold randomization.enabled=false" "$FINE"
-teacher $R/hold 400 "$(last $R/nominal_hold 300)" "task=hold $SOFT" "$FINE"
-teacher $R/hold_slow 500 "$(last $R/hold 400)" "task=hold $SOFT" "$SLOW"
-teacher $R/wide 500 "$(last $R/hold_slow 500)" "task=hold $SOFT $WIDE" "$SLOW"
+train_gt $R/simple 300 "" randomization.enabled=false "$BETA"
+train_gt $R/nominal_hold 300 "$(last $R/simple 300)" "task=hold randomization.enabled=false" "$FINE"
+train_gt $R/hold 400 "$(last $R/nominal_hold 300)" "task=hold $SOFT" "$FINE"
+train_gt $R/hold_slow 500 "$(last $R/hold 400)" "task=hold $SOFT" "$SLOW"
+train_gt $R/wide 500 "$(last $R/hold_slow 500)" "task=hold $SOFT $WIDE" "$SLOW"
 stage perception data and training
 experiments/perception_mix/record.sh
 PERC=runs/perc/mix4_c32
