@@ -190,3 +190,32 @@ def test_a_common_share_of_hands_moves_their_joints_together():
     np.testing.assert_array_equal(draw_ranges(RandomizationConfig(joint_common=0.0), u[:, :-4])["damping_scale"], alone)
     with pytest.raises(ConfigError, match="randomization.joint_common"):
         RandomizationConfig(joint_common=1.5)
+
+
+def test_a_target_band_keeps_the_motors_off_their_torque_limit():
+    """Bang-bang actions drive the nominal motors to their 0.5 N m limit; with targets kept within
+    0.15 rad of the measured angles (3 N m/rad x 0.15 = 0.45 N m) a motor reaches it only when a joint
+    still moving away overshoots inside a step, and every target stays within the band of the angles
+    read when it was sent."""
+    actions = np.sign(np.random.default_rng(2).uniform(-1, 1, (30, 8, 16)))
+
+    def saturated_share(cfg):
+        env = BaodingEnv(cfg)
+        env.reset(seed=3)
+        at_limit = []
+        for a in actions:
+            before = env.joint_pos.copy()
+            env.step(a)
+            sent = env.hand_io.targets[:, 0]
+            if cfg.target_band_rad:
+                assert np.all(np.abs(sent - before) <= cfg.target_band_rad + 1e-12)
+            at_limit.append(np.abs(env.sim.actuator_force[:, :16]) >= 0.5 - 1e-6)
+        return np.mean(at_limit)
+
+    assert saturated_share(CFG) > 0.2
+    assert saturated_share(replace(CFG, target_band_rad=0.15)) < 0.002
+
+
+def test_a_negative_target_band_names_its_key():
+    with pytest.raises(ConfigError, match="target_band_rad"):
+        override(CFG, {"target_band_rad": -0.1})

@@ -118,6 +118,17 @@ def test_safety_step_limit_keeps_targets_near_the_pose(controller, monkeypatch):
     np.testing.assert_allclose(target, np.minimum(q + 0.05, controller.joint_high))
 
 
+def test_a_policy_trained_with_a_target_band_keeps_it_on_the_hand(controller, monkeypatch):
+    """The band is part of what the policy's actions mean: the controller applies it as the env did,
+    and it is not a safety event."""
+    monkeypatch.setattr(controller, "env_config", replace(controller.env_config, target_band_rad=0.1))
+    monkeypatch.setattr(controller, "policy", lambda obs: np.full((1, 16), 1.0, np.float32))
+    q = np.clip(np.full(16, 0.5), controller.joint_low, controller.joint_high)
+    target = controller.step(q, np.zeros(16), np.zeros(controller.num_taxels))
+    np.testing.assert_allclose(target, np.minimum(q + 0.1, controller.joint_high))
+    assert "max_step_rad" not in controller.safety.active
+
+
 def test_a_policy_that_needs_ball_positions_is_refused(policy_file, tmp_path):
     data = torch.load(policy_file, weights_only=True)
     data["env_config"]["obs_mode"] = "groundtruth"

@@ -329,7 +329,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         if not np.isfinite(actions).all():
             raise ValueError(f"non-finite actions in envs {np.flatnonzero(~np.isfinite(actions).all(1)).tolist()}")
         actions = np.clip(actions, -1.0, 1.0)
-        self.hand_io.push(self.action_to_ctrl(self.hand_io.command(actions, self._rng)))
+        target = self.action_to_ctrl(self.hand_io.command(actions, self._rng))
+        self.hand_io.push(self.hand_io.banded(target, self.joint_pos, cfg.target_band_rad, self.target_ranges))
         self._apply_disturbances()
         diverged, ball_forces = self._step_physics()
         self.episode_steps += 1

@@ -23,6 +23,7 @@ docs/environment.md):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -114,6 +115,10 @@ class BaodingConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
     control_dt: float = 0.02
+    target_band_rad: float = 0.0
+    """Motor targets are kept within this many rad of the joints' measured angles when sent (0: off).
+    The real controller applies the same rule (`real-hand run`), so a policy trained with it acts the
+    same on the hand. At the nominal gain (3 N m/rad) 0.15 rad keeps a motor under its 0.5 N m limit."""
     max_episode_steps: int = 200
     """Step limit of the 180-degree tasks (the continuous task's is `continuous_seconds`)."""
     continuous_seconds: float = 10.0
@@ -177,6 +182,8 @@ class BaodingConfig:
         check(1 <= self.max_episode_steps <= 100_000, "max_episode_steps",
               f"must be in 1..100000 (33 min at 50 Hz), got {self.max_episode_steps}")
         check(0 < self.control_dt <= 1, "control_dt", f"must be in (0, 1] s, got {self.control_dt}")
+        check(0 <= self.target_band_rad <= math.pi, "target_band_rad",
+              f"must be in [0, pi] rad (0: off), got {self.target_band_rad}")
         substeps = self.control_dt / self.sim.timestep
         whole = round(substeps) >= 1 and abs(substeps - round(substeps)) < 1e-6
         check(0 < self.control_dt <= 1 and whole, "control_dt",

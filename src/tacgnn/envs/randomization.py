@@ -237,6 +237,14 @@ class HandIO:
             return actions
         return np.clip(actions + self.cfg.action_noise * rng.standard_normal(actions.shape), -1.0, 1.0)
 
+    def banded(self, target: np.ndarray, q: np.ndarray, band: float, ranges: np.ndarray) -> np.ndarray:
+        """`target` (N, 16) kept within `band` rad of the angles the joints read now (true `q` when off),
+        then inside `ranges` (16, 2): the real controller's `max_step_rad`. Unchanged when `band` is 0."""
+        if band == 0:
+            return target
+        measured = self.noisy_q if self.enabled else q
+        return np.clip(np.clip(target, measured - band, measured + band), ranges[:, 0], ranges[:, 1])
+
     def push(self, target: np.ndarray) -> None:
         """A new control step's joint targets (N, 16)."""
         self.targets[:, 1:] = self.targets[:, :-1]

@@ -49,7 +49,8 @@ class BlindControllerConfig:
     """Threads for the policy and perception networks (one tick is small; 1 keeps latency steady)."""
     max_step_rad: float = 0.0
     """If > 0, targets stay within this distance of the measured angles (a safety limit for first
-    trials); 0 commands exactly what the policy does in simulation."""
+    trials); 0 commands exactly what the policy does in simulation. A policy trained with a band
+    (`target_band_rad`) always keeps it; this can only narrow it."""
     max_target_rate: float = 0.0
     """If > 0, a target moves at most this fast (rad/s) from the last commanded target (the first
     tick of an episode: from the measured angles); 0: no limit."""
@@ -215,6 +216,8 @@ class BlindController:
         """The safety rules on a target: step limit, rate limit, joint ranges (in that order)."""
         cfg = self.config
         out = target.copy()
+        trained = self.env_config.target_band_rad  # the policy's own rule: never a safety event
+        out = np.clip(out, joint_pos - trained, joint_pos + trained) if trained > 0 else out
         near = np.clip(out, joint_pos - cfg.max_step_rad, joint_pos + cfg.max_step_rad) if cfg.max_step_rad > 0 \
             else out
         self.safety.note("max_step_rad", bool((near != out).any()),
