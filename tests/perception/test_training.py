@@ -5,7 +5,7 @@ import torch
 
 from tacgnn.config import ConfigError
 from tacgnn.datasets.store import DatasetError
-from tacgnn.perception.checkpoint import load_checkpoint, load_model
+from tacgnn.perception.checkpoint import CheckpointError, load_checkpoint, load_model
 from tacgnn.perception.data import load_tactile, split
 from tacgnn.perception.objectives import Objective
 from tacgnn.perception.train_config import PerceptionTrainConfig
@@ -107,3 +107,20 @@ def test_wrong_dataset_and_config_values_are_named(dataset, tmp_path):
     for threads in (0, 10_000):
         with pytest.raises(ConfigError, match="'threads'"):
             PerceptionTrainConfig(threads=threads)
+
+
+def test_a_run_started_from_a_checkpoint_starts_where_it_ended(dataset, tmp_path):
+    """init_from: one more epoch from a trained model starts at its error, far below a fresh start;
+    a checkpoint of another network is refused, naming it."""
+    cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=4, threads=1)
+    trained = train(cfg, dataset, tmp_path / "first", log=quiet)
+    first = tmp_path / "first" / "checkpoint.pt"
+    fresh = load_checkpoint(first)["history"][0]["loss"]
+    more = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, lr=1e-6, init_from=str(first))
+    again = train(more, dataset, tmp_path / "more", log=quiet)
+    assert load_checkpoint(tmp_path / "more" / "checkpoint.pt")["history"][0]["loss"] < 0.7 * fresh
+    assert again["test/position_rmse_cm"] == pytest.approx(trained["test/position_rmse_cm"], rel=0.02)
+    wider = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, init_from=str(first),
+                                           model_kw={"channels": 64})
+    with pytest.raises(CheckpointError, match="init_from .* differs in \\['model'\\]"):
+        train(wider, dataset, tmp_path / "wider", log=quiet)

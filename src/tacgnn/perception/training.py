@@ -141,6 +141,16 @@ def load_extra(path: str, num_taxels: int) -> SequenceData:
     return data
 
 
+def start_from(model: torch.nn.Module, cfg: PerceptionTrainConfig, path: str) -> None:
+    """Load the weights of perception checkpoint `path` into `model`, refusing one of another network."""
+    payload = load_checkpoint(path)
+    ours = to_dict(cfg)
+    diff = [k for k in ("model", "temporal", "memory") if payload["config"].get(k, ours[k]) != ours[k]]
+    if diff:
+        raise CheckpointError(f"init_from {path}: its network differs in {diff}")
+    model.load_state_dict(payload["model"])
+
+
 def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, resume: bool = False,
           log: Callable[[str], object] = print, rest_positions_cm: Tensor | None = None) -> dict:
     """Train on `dataset`; return the last epoch's metrics (train with a split by frame, and test).
@@ -172,7 +182,9 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
 
     torch.manual_seed(cfg.seed)
     model = build_perception(cfg.model, cfg.temporal, cfg.memory, rest)
-    if cfg.init_output_bias:
+    if cfg.init_from:
+        start_from(model, cfg, cfg.init_from)
+    elif cfg.init_output_bias:
         init_output_bias(model, train_set.frames.targets.mean(0))
     optim = make_optimizer(model, cfg.lr, cfg.weight_decay)
     history: list[dict] = []
