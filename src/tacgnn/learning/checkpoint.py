@@ -162,9 +162,9 @@ def check_policy_fits(checkpoint: dict[str, Any], env_cfg: BaodingConfig, path: 
     For acting, where other physics, tasks or skin noise are fine: the observation mode must
     match, a perceiving policy needs a skin of as many taxels as its perception reads, and a
     policy that sees the balls needs them shown as it was trained (`ball_order`, `ball_velocity`:
-    another order is a silent wrong answer, velocities another observation width). Compared on
-    the configs, before any tensor is built, so a mismatch is named rather than failing as a
-    tensor size error.
+    another order is a silent wrong answer, velocities another observation width), and every policy
+    its actions read as trained (`target_band_rad`). Compared on the configs, before any tensor is
+    built, so a mismatch is named rather than failing as a tensor size error.
     """
     stored = stored_env_config(checkpoint, path)
     diffs: list[tuple[str, Any, Any]] = []
@@ -173,9 +173,9 @@ def check_policy_fits(checkpoint: dict[str, Any], env_cfg: BaodingConfig, path: 
     elif env_cfg.obs_mode in ("perceived", "tactile") and stored.skin.num_taxels != env_cfg.skin.num_taxels:
         diffs.append(("skin (number of taxels)", stored.skin.num_taxels, env_cfg.skin.num_taxels))
     _raise_on(diffs, f"the policy in {path} cannot act in this env: it observes differently")
-    if stored.obs_mode in ("no_perception", "finger_torque", "tactile"):  # its observation shows no ball positions
-        return
-    for key in ("ball_order", "ball_velocity"):
+    shown = ("ball_order", "ball_velocity")  # a policy that sees the balls needs them shown as trained
+    bare = stored.obs_mode in ("no_perception", "finger_torque", "tactile")  # its observation shows no balls
+    for key in ("target_band_rad",) + (() if bare else shown):  # the band: what its actions mean
         trained, requested = getattr(stored, key), getattr(env_cfg, key)
         if trained != requested:
             raise CheckpointError(f"the policy in {path} was trained with {key}={trained}, this env has "
