@@ -206,7 +206,9 @@ def test_evaluate_runs_a_policy_on_another_perception(tmp_path, monkeypatch):
     read = np.concatenate(seen)
     gap = np.abs(read[:, None, :] - made[None]).max(-1).min(1)  # to the nearest prediction, m
     assert gap.max() < 1e-6
+    assert 0 < out["perception_rmse_cm"] < 20  # an untrained perception's error in the loop, cm
     monkeypatch.undo()
+    assert evaluation.evaluate(gt_policy, "simple", episodes=1, num_envs=1)["perception_rmse_cm"] is None
 
     with pytest.raises(ValueError, match="trained without a perception"):
         evaluation.evaluate(gt_policy, episodes=1, num_envs=1, perception_from=gt_policy)
@@ -305,3 +307,11 @@ def test_a_missing_anchor_dataset_is_refused_naming_the_key(tmp_path):
     cfg = OnlinePerceptionConfig(anchor_dataset=str(tmp_path / "nowhere"))
     with pytest.raises(ConfigError, match=r"perception.anchor_dataset: .*nowhere.*no dataset manifest"):
         OnlinePerception(cfg, to_dict(default_skin()))
+
+
+def test_the_in_loop_perception_error_matches_each_frame_s_balls_in_the_better_order():
+    from tacgnn.learning.evaluate import matched_squared_error
+
+    true = np.array([[0.0, 0, 0, 1, 1, 1], [0, 0, 0, 1, 1, 1]])
+    perceived = np.array([[1.0, 1, 1, 0, 0, 0.1], [0, 0, 0.2, 1, 1, 1]])  # swapped and off by 0.1; in order, 0.2
+    assert matched_squared_error(perceived, true) == pytest.approx(0.01 + 0.04)

@@ -40,6 +40,7 @@ from tacgnn.provenance import provenance
 TASKS_180: tuple[Literal["simple", "middle", "hard", "hold"], ...] = (  # the paper's three, and Simple with a 1 s hold
     "simple", "middle", "hard", "hold")
 TASKS = (*TASKS_180, "continuous")  # and as many turns as possible in 10 s
+PERCEPTION_FROM_STEP = 6  # the perception's in-loop error counts from here (the balls drop from the spawn before)
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -163,8 +164,13 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
     quota[: episodes % n] += 1
     counted = np.zeros(n, np.int64)
     successes, falls, steps_to_success, final_angles = 0, 0, [], []
+    squared, frames = 0.0, 0  # the perception's error in the loop (perceived policies)
     while (counted < quota).any():  # every episode ends within max_episode_steps
         obs, _, terminated, truncated, info = env.step(policy(obs))
+        if env_cfg.obs_mode == "perceived":
+            going = ~(terminated | truncated) & (info["episode_steps"] >= PERCEPTION_FROM_STEP) & (counted < quota)
+            squared += matched_squared_error(env.perceived_balls[going], info["ball_pos"][going].reshape(-1, 6))
+            frames += int(going.sum())
         # Same-step autoreset: `info` describes the episodes that just ended, `obs` the new ones.
         ids = np.flatnonzero((terminated | truncated) & (counted < quota))
         counted[ids] += 1
@@ -183,7 +189,14 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
         "fall_rate": falls / episodes,
         "mean_final_angle_deg": float(np.mean(final_angles)),
         **_turns(np.asarray(final_angles) / 360.0),
+        "perception_rmse_cm": 100 * math.sqrt(squared / (6 * frames)) if frames else None,
     }
+
+
+def matched_squared_error(perceived: np.ndarray, true: np.ndarray) -> float:
+    """Sum of squared coordinate errors (m^2) of (F, 6) ball positions, each frame in the better ball order."""
+    swapped = np.concatenate([true[:, 3:], true[:, :3]], 1)
+    return float(np.minimum(((perceived - true) ** 2).sum(1), ((perceived - swapped) ** 2).sum(1)).sum())
 
 
 def _turns(turns: np.ndarray) -> dict[str, Any]:
@@ -239,13 +252,14 @@ def _evaluate_command(args: argparse.Namespace) -> int:
     print(f"{'task':8s} {'success':>8s} {'95% CI':>13s} {'steps':>6s} {'falls':>6s}")
     for r in results:
         lo, hi = r["ci95"]
+        seen = "" if r["perception_rmse_cm"] is None else f"  perception {r['perception_rmse_cm']:.3f} cm"
         if r["task"] == "continuous":
             tlo, thi = r["rotations_ci95"]
             print(f"{r['task']:8s} {r['rotations_mean']:.2f} turns per episode (95% CI {tlo:.2f}-{thi:.2f}, "
-                  f"best {r['rotations_max']:.2f}), falls {100 * r['fall_rate']:.1f}%")
+                  f"best {r['rotations_max']:.2f}), falls {100 * r['fall_rate']:.1f}%{seen}")
             continue
         print(f"{r['task']:8s} {100 * r['success_rate']:7.1f}% {100 * lo:5.1f}-{100 * hi:5.1f}% "
-              f"{r['mean_steps_to_success']:6.1f} {100 * r['fall_rate']:5.1f}%")
+              f"{r['mean_steps_to_success']:6.1f} {100 * r['fall_rate']:5.1f}%{seen}")
     if args.out:
         atomic_write_text(args.out, json.dumps(results if len(results) > 1 else results[0], indent=2))
     return 0
