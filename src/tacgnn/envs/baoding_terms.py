@@ -41,10 +41,12 @@ def spawn_overlaps(model: Any, scratch: Any, qpos: np.ndarray, ball_geom: np.nda
     d.qpos[:] = qpos
     mujoco.mj_kinematics(m, d)
     mujoco.mj_collision(m, d)
-    near = d.contact.dist[:d.ncon] < clearance
+    contact = d.contact
+    near = contact.dist[:d.ncon] < clearance
     if not near.any():
         return False
-    return bool(np.isin(d.contact.geom[:d.ncon][near], ball_geom).any())
+    touching = contact.geom[:d.ncon][near]
+    return bool((touching[..., None] == ball_geom).any())  # np.isin's answer, 5x faster on a few contacts
 
 
 # --- the angle ---------------------------------------------------------------------------
