@@ -437,14 +437,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             sim.ctrl[:] = io.target_at(0)
             return sim.step(self.substeps), self.ball_contact_forces()
         diverged = np.zeros(self.num_envs, bool)
-        peak = np.zeros_like(self.ball_contact_forces())  # forces are >= 0
-        forces = peak
+        peak = np.zeros_like(self.ball_contact_forces())  # forces are >= 0; their layout (sums follow it)
         for substep in range(self.substeps):
             sim.ctrl[:] = io.target_at(substep)
             diverged |= sim.step(1)
-            forces = self.ball_contact_forces()
-            np.maximum(peak, forces, out=peak)
-        return diverged, peak if peak_wanted else forces
+            if peak_wanted:  # else only the last substep's forces are read
+                np.maximum(peak, self.ball_contact_forces(), out=peak)
+        return diverged, peak if peak_wanted else self.ball_contact_forces()
 
     def _late_skin(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None,
                    fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:
