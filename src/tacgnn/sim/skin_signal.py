@@ -273,37 +273,63 @@ class SkinSignal:
 
     def reset(self, ids: np.ndarray, rngs: list[np.random.Generator]) -> None:
         """Draw a new skin for each env in `ids` (from its own stream, `rngs[k]` for `ids[k]`) and
-        calibrate it on rest frames."""
+        calibrate it on rest frames.
+
+        Each env's stream gives its draws in the order of the model below (into rows of batch
+        arrays); the maths then runs on all the reset envs at once, element for element as per env.
+        """
         c = self.config
         if c.is_ideal:
             return
-        t = self.memory.shape[1]
-        for env, g in zip(ids, rngs):
-            patch_gain = np.exp(c.patch_gain_spread * g.standard_normal(self.num_patches))
-            self.gain[env] = patch_gain[self.patch_of_taxel] * np.exp(c.gain_spread * g.standard_normal(t))
-            self.offset[env] = g.uniform(*c.offset, t)
-            dead = g.random(t) < g.uniform(*c.dead_fraction)
-            stuck = ~dead & (g.random(t) < g.uniform(*c.stuck_fraction))
-            # the calibration: rest frames give the baseline and the threshold; a patch load the gain
-            rest = self._quantise(self.offset[env] + c.noise_floor * g.standard_normal((c.rest_frames, t)))
-            rest[:, dead] = 0.0
-            self.baseline[env] = rest.mean(0)
-            self.threshold[env] = np.maximum(c.calibration_sigmas * rest.std(0), c.min_threshold)
-            self.dead[env] = (rest == 0).all(0)
-            measured = patch_gain * (1.0 + c.patch_gain_error * g.standard_normal(self.num_patches))
-            self.calibration_gain[env] = 1.0 / np.maximum(measured, 1e-3)[self.patch_of_taxel]
-            # since then: drift (which a tracking baseline has followed, a time constant behind), and
-            # the stuck taxels' phantom presses
-            speed = c.drift_rate * g.standard_normal(t)
-            age = g.uniform(*c.calibration_age)
-            self.drift[env] = speed * age
-            self.drift_speed[env] = speed * self.frame_dt
-            self.stuck[env] = np.where(stuck, self.baseline[env] + g.uniform(*c.stuck_level, t), 0.0)
-            if self.tracking > 0:  # an EMA behind a ramp: v tau (1 - exp(-age / tau))
-                tau = c.baseline_tracking
-                behind = speed * tau * -np.expm1(-age / tau)
-                self.baseline[env] += np.where(dead | stuck, 0.0, self.drift[env] - behind).astype(np.float32)
-            self.memory[env] = 0.0
+        n, t, p = len(ids), self.memory.shape[1], self.num_patches
+        patch_z, measure_z = np.empty((n, p)), np.empty((n, p))
+        gain_z, offset_u, dead_u, stuck_u, speed_z, level_u = np.empty((6, n, t))
+        rest_z = np.empty((n, c.rest_frames, t))
+        dead_share, stuck_share, age = np.empty((3, n))
+        for k, g in enumerate(rngs):
+            g.standard_normal(out=patch_z[k])
+            g.standard_normal(out=gain_z[k])
+            g.random(out=offset_u[k])  # g.uniform(lo, hi) is lo + (hi - lo) * g.random()
+            g.random(out=dead_u[k])
+            dead_share[k] = g.uniform(*c.dead_fraction)
+            g.random(out=stuck_u[k])
+            stuck_share[k] = g.uniform(*c.stuck_fraction)
+            g.standard_normal(out=rest_z[k])
+            g.standard_normal(out=measure_z[k])
+            g.standard_normal(out=speed_z[k])
+            age[k] = g.uniform(*c.calibration_age)
+            g.random(out=level_u[k])
+        patch_gain = np.exp(c.patch_gain_spread * patch_z)
+        self.gain[ids] = patch_gain[:, self.patch_of_taxel] * np.exp(c.gain_spread * gain_z)
+        offset = (c.offset[0] + (c.offset[1] - c.offset[0]) * offset_u).astype(np.float32)
+        self.offset[ids] = offset
+        dead = dead_u < dead_share[:, None]
+        stuck = ~dead & (stuck_u < stuck_share[:, None])
+        # the calibration: rest frames give the baseline and the threshold; a patch load the gain
+        rest_z *= c.noise_floor
+        rest_z += offset[:, None]
+        rest = self._quantise(rest_z)
+        np.copyto(rest, 0.0, where=dead[:, None])
+        baseline = rest.mean(1).astype(np.float32)
+        threshold = np.maximum(c.calibration_sigmas * rest.std(1), c.min_threshold)
+        self.dead[ids] = (rest == 0).all(1)
+        measured = patch_gain * (1.0 + c.patch_gain_error * measure_z)
+        self.calibration_gain[ids] = 1.0 / np.maximum(measured, 1e-3)[:, self.patch_of_taxel]
+        # since then: drift (which a tracking baseline has followed, a time constant behind), and
+        # the stuck taxels' phantom presses
+        speed = c.drift_rate * speed_z
+        drift = (speed * age[:, None]).astype(np.float32)
+        self.drift[ids] = drift
+        self.drift_speed[ids] = speed * self.frame_dt
+        level = c.stuck_level[0] + (c.stuck_level[1] - c.stuck_level[0]) * level_u
+        self.stuck[ids] = np.where(stuck, baseline + level, 0.0)
+        if self.tracking > 0:  # an EMA behind a ramp: v tau (1 - exp(-age / tau))
+            tau = c.baseline_tracking
+            behind = speed * tau * -np.expm1(-age / tau)[:, None]
+            baseline += np.where(dead | stuck, 0.0, drift - behind).astype(np.float32)
+        self.baseline[ids] = baseline
+        self.threshold[ids] = threshold
+        self.memory[ids] = 0.0
 
     def __call__(self, forces: np.ndarray, ids: np.ndarray | slice, rng: np.random.Generator | None) -> np.ndarray:
         """Calibrated readings (n, T) of envs `ids` from their ideal forces (n, T), advancing each
