@@ -156,6 +156,22 @@ def test_the_compiled_chain_is_the_numpy_chain_to_the_bit():
         np.testing.assert_array_equal(getattr(compiled, name), getattr(reference, name))
 
 
+@pytest.mark.parametrize("config", [SkinSignalConfig(), replace(SkinSignalConfig(), noise_floor=0.5, quantisation=0.0,
+                                                                    dead_fraction=(0.2, 0.5), baseline_tracking=0.0)])
+def test_the_compiled_calibration_is_the_numpy_one_to_the_bit(config):
+    """A reset's rest frames run compiled in the env; the numpy path is their reference: every
+    skin's state and every stream agree exactly."""
+    compiled, reference = SkinSignal(config, LAYOUT, 9, 0.02), SkinSignal(config, LAYOUT, 9, 0.02)
+    reference.use_compiled = False
+    for ids in (np.arange(9), np.array([2]), np.array([0, 5, 7])):
+        streams = [[np.random.default_rng(10 * len(ids) + i) for i in ids] for _ in range(2)]
+        compiled.reset(ids, streams[0])
+        reference.reset(ids, streams[1])
+        assert [g.random() for g in streams[0]] == [g.random() for g in streams[1]]
+    for name in SkinSignal.STATE:
+        np.testing.assert_array_equal(getattr(compiled, name), getattr(reference, name))
+
+
 def test_a_tracking_baseline_keeps_a_drifting_skin_at_zero_for_minutes_and_a_press_whole():
     """Five minutes of drift at rest: the fixed baseline reads a growing share of the taxels as
     touched, the tracking one none; a press held for 2 s keeps its reading (pressed taxels keep

@@ -232,6 +232,36 @@ def _chain_kernel(forces, rows, neighbours, count, memory, gain, offset, drift, 
 _chain = LazyKernel(_chain_kernel)
 
 
+def _rest_kernel(z, offset, dead, noise_floor, step, inverse_step, mean, std, all_zero):  # pragma: no cover (compiled)
+    """The calibration's rest frames (n, F, T) from their normal draws `z`, in place, and per taxel
+    their mean, std and whether all read 0: `SkinSignal.reset`'s numpy path (quantise, `mean(1)`,
+    `std(1)`) in the same float64 operations and order, without its (n, F, T) temporaries."""
+    n, frames, num_taxels = z.shape
+    for k in range(n):
+        for f in range(frames):
+            for t in range(num_taxels):
+                v = max(z[k, f, t] * noise_floor + offset[k, t], 0.0)
+                if step > 0:
+                    v = np.rint(v * inverse_step) * step
+                z[k, f, t] = 0.0 if dead[k, t] else v
+        for t in range(num_taxels):
+            total = z[k, 0, t]
+            zero = total == 0
+            for f in range(1, frames):
+                total += z[k, f, t]
+                zero = zero and z[k, f, t] == 0
+            m = total / frames
+            d = z[k, 0, t] - m
+            spread = d * d
+            for f in range(1, frames):
+                d = z[k, f, t] - m
+                spread += d * d
+            mean[k, t], std[k, t], all_zero[k, t] = m, np.sqrt(spread / frames), zero
+
+
+_rest = LazyKernel(_rest_kernel)
+
+
 class SkinSignal:
     """One real skin per env: draws it at reset, calibrates it, and turns each frame's ideal forces
     into calibrated readings (see the module docstring). With the 'ideal' preset it passes the
@@ -246,7 +276,7 @@ class SkinSignal:
     Shapes (N envs, T taxels): ``__call__(forces (n, T), ids, rng) -> (n, T)`` float32.
     """
 
-    use_compiled: bool = True  # False: the numpy path (the reference the compiled chain is tested against)
+    use_compiled: bool = True  # False: the numpy paths (references of the compiled chain and calibration)
     STATE = ("memory", "drift", "drift_speed", "gain", "offset", "baseline", "threshold", "calibration_gain", "dead",
              "stuck")  # stuck: the raw value a stuck taxel reads (0: not stuck)
 
@@ -306,13 +336,20 @@ class SkinSignal:
         dead = dead_u < dead_share[:, None]
         stuck = ~dead & (stuck_u < stuck_share[:, None])
         # the calibration: rest frames give the baseline and the threshold; a patch load the gain
-        rest_z *= c.noise_floor
-        rest_z += offset[:, None]
-        rest = self._quantise(rest_z)
-        np.copyto(rest, 0.0, where=dead[:, None])
-        baseline = rest.mean(1).astype(np.float32)
-        threshold = np.maximum(c.calibration_sigmas * rest.std(1), c.min_threshold)
-        self.dead[ids] = (rest == 0).all(1)
+        kernel = _rest.get() if self.use_compiled else None
+        if kernel is None:
+            rest_z *= c.noise_floor
+            rest_z += offset[:, None]
+            rest = self._quantise(rest_z)
+            np.copyto(rest, 0.0, where=dead[:, None])
+            rest_mean, rest_std, rest_zero = rest.mean(1), rest.std(1), (rest == 0).all(1)
+        else:
+            rest_mean, rest_std, rest_zero = np.empty((n, t)), np.empty((n, t)), np.empty((n, t), bool)
+            kernel(rest_z, offset, dead, c.noise_floor, c.quantisation, 1.0 / c.quantisation if c.quantisation > 0
+                   else 1.0, rest_mean, rest_std, rest_zero)
+        baseline = rest_mean.astype(np.float32)
+        threshold = np.maximum(c.calibration_sigmas * rest_std, c.min_threshold)
+        self.dead[ids] = rest_zero
         measured = patch_gain * (1.0 + c.patch_gain_error * measure_z)
         self.calibration_gain[ids] = 1.0 / np.maximum(measured, 1e-3)[:, self.patch_of_taxel]
         # since then: drift (which a tracking baseline has followed, a time constant behind), and
