@@ -1,7 +1,7 @@
 """Table II: ball positions from the skin, every perception model on a teacher's frames.
 
     .venv/bin/python experiments/table2.py [--dataset data/table2] [--seeds 1] [--epochs 10]
-        [--models mlp cnn gcn tacgnn-32 tacgnn-64]
+        [--models mlp cnn gcn tacgnn-32 tacgnn-64] [--max-samples N]
 
 The dataset (recorded first, or completed if cut off: `RECORD`) is 50,000 frames of the committed
 ground-truth teacher on the 1 s hold task, the nominal hand and the default (real) skin, split
@@ -12,6 +12,8 @@ the test split. results/table2/MODEL_sSEED.json: the chosen epoch, train (that e
 validation and test RMSE (cm), the test error of balls the skin touches and of balls it does not
 (no activated taxel within 3 cm of the centre), and the error with the palm's whole patch lost,
 with the run's provenance. Prints the table in markdown, the paper's figures beside ours.
+`--max-samples N` trains and scores on the first N frames only (the same split rule; names end
+in `_nN`): how the error falls with the data.
 """
 
 from __future__ import annotations
@@ -42,11 +44,12 @@ RECORD = ["make-dataset", "baoding", "--policy", TEACHER, "--samples", "50000", 
 VAL_FRACTION = 0.1
 
 
-def run(name: str, seed: int, dataset: Path, epochs: int) -> dict:
+def run(name: str, seed: int, dataset: Path, epochs: int, max_samples: int = 0) -> dict:
     model, _, channels = name.partition("-")
     cfg = PerceptionTrainConfig.for_task("baoding", model, epochs=epochs, seed=seed, val_fraction=VAL_FRACTION,
-                                         model_kw={"channels": int(channels or 32)})
-    run_dir = ROOT / "runs" / "table2" / f"{name}_s{seed}"
+                                         max_samples=max_samples, model_kw={"channels": int(channels or 32)})
+    tag = f"{name}_s{seed}" + (f"_n{max_samples}" if max_samples else "")
+    run_dir = ROOT / "runs" / "table2" / tag
     ckpt = run_dir / "checkpoint.pt"
     if not (ckpt.exists() and load_checkpoint(ckpt)["epoch"] == epochs - 1):
         def log(line: str) -> None:
@@ -56,7 +59,7 @@ def run(name: str, seed: int, dataset: Path, epochs: int) -> dict:
     best = run_dir / "best.pt"
     chosen = load_checkpoint(best)["history"][-1]
     test = patch_loss(best, dataset, "palm")  # the intact test errors, and with the palm lost
-    kept = ROOT / "results" / "table2" / "checkpoints" / f"{name}_s{seed}.pt"
+    kept = ROOT / "results" / "table2" / "checkpoints" / f"{tag}.pt"
     kept.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(best, kept)
     result = {"model": name, "seed": seed, "epoch": chosen["epoch"], "train_rmse_cm": chosen["train/position_rmse_cm"],
@@ -66,8 +69,8 @@ def run(name: str, seed: int, dataset: Path, epochs: int) -> dict:
               "palm_lost_rmse_ratio": test["rmse_ratio"], "paper_train_test_cm": PAPER.get(name),
               "provenance": provenance({"perception": kept.relative_to(ROOT)}, seed,
                                        {"epochs": epochs, "dataset": str(dataset), "val_fraction": VAL_FRACTION,
-                                        "record": RECORD})}
-    out = ROOT / "results" / "table2" / f"{name}_s{seed}.json"
+                                        "max_samples": max_samples, "record": RECORD})}
+    out = ROOT / "results" / "table2" / f"{tag}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, json.dumps(result, indent=1))
     return result
@@ -79,6 +82,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=1)
     ap.add_argument("--epochs", type=int, default=10)
     ap.add_argument("--models", nargs="+", default=list(PAPER), choices=list(PAPER))
+    ap.add_argument("--max-samples", type=int, default=0, help="train and score on the first N frames (0: all)")
     args = ap.parse_args()
     # makes only the shards that are missing: a few seconds when the dataset is complete
     subprocess.run([sys.executable, "-m", "tacgnn.cli", *RECORD, "--out", str(args.dataset)], check=True, cwd=ROOT)
@@ -86,7 +90,7 @@ def main() -> None:
             "| train (paper) | test (paper) |",
             "|---|---|---|---|---|---|---|---|---|---|"]
     for name in args.models:
-        res = [run(name, s, args.dataset, args.epochs) for s in range(args.seeds)]
+        res = [run(name, s, args.dataset, args.epochs, args.max_samples) for s in range(args.seeds)]
 
         def cell(key: str, res: list = res) -> str:
             v = [r[key] for r in res]
