@@ -50,6 +50,8 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
     """One row of the table; `nominal` replaces the nominal hand's config (e.g. another reward)."""
     cfg = (nominal or BaodingConfig()) if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
+    if drive == "policy":  # its actions mean what they meant in training
+        cfg = replace(cfg, target_band_rad=load_policy(SHIPPED_TEACHER)[1].target_band_rad)
     env = BaodingEnv(cfg)
     env.reset(seed=0)
     next_actions = driver(env, drive)
