@@ -37,3 +37,17 @@ def test_weights_of_another_model_are_refused(dataset, tmp_path):
     torch.save(payload, path)
     with pytest.raises(CheckpointError, match="checkpoint.pt: the weights do not fit"):
         load_model(path)
+
+
+def test_every_committed_perception_checkpoint_reads_in_this_code():
+    """The report's perception figures rest on these files: a config key added to the code must not
+    make them unreadable (a key only training uses is an argument, not a config key)."""
+    from pathlib import Path
+
+    from tacgnn.files import read_weights
+
+    root = Path(__file__).resolve().parents[2] / "results"
+    files = [f for f in sorted(root.glob("*/checkpoints/*.pt")) if read_weights(f, "file").get("kind") == "perception"]
+    assert len(files) >= 8
+    for path in files:
+        load_model(path)

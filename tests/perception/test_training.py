@@ -116,11 +116,10 @@ def test_a_run_started_from_a_checkpoint_starts_where_it_ended(dataset, tmp_path
     trained = train(cfg, dataset, tmp_path / "first", log=quiet)
     first = tmp_path / "first" / "checkpoint.pt"
     fresh = load_checkpoint(first)["history"][0]["loss"]
-    more = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, lr=1e-6, init_from=str(first))
-    again = train(more, dataset, tmp_path / "more", log=quiet)
+    more = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, lr=1e-6)
+    again = train(more, dataset, tmp_path / "more", log=quiet, init_from=first)
     assert load_checkpoint(tmp_path / "more" / "checkpoint.pt")["history"][0]["loss"] < 0.7 * fresh
     assert again["test/position_rmse_cm"] == pytest.approx(trained["test/position_rmse_cm"], rel=0.02)
-    wider = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, init_from=str(first),
-                                           model_kw={"channels": 64})
+    wider = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, model_kw={"channels": 64})
     with pytest.raises(CheckpointError, match="init_from .* differs in \\['model'\\]"):
-        train(wider, dataset, tmp_path / "wider", log=quiet)
+        train(wider, dataset, tmp_path / "wider", log=quiet, init_from=first)

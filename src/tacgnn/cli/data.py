@@ -92,7 +92,7 @@ def cmd_train_perception(args) -> int:
     check_writable(args.run, "run folder")
     from tacgnn.perception.training import train
 
-    final = train(cfg, args.dataset, args.run, resume=args.resume)
+    final = train(cfg, args.dataset, args.run, resume=args.resume, init_from=args.init_from)
     print("final:", {k: round(v, 4) for k, v in final.items() if isinstance(v, float)})
     print(f"saved {args.run}/checkpoint.pt")
     return 0
@@ -160,6 +160,7 @@ def register(sub) -> None:
     p.add_argument("--max-samples", type=count(0), default=0, help="use the first this-many samples; 0: all")
     p.add_argument("--seed", type=seed, default=0, help="split, initialisation and batches")
     p.add_argument("--resume", action="store_true", help="continue the run in --run")
+    p.add_argument("--init-from", help="start from this perception checkpoint's weights (the same network)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                    help="override training config keys (e.g. lr=1e-3 model.joint_inputs=16)")
     p.add_argument("--temporal", action="store_true",

@@ -94,9 +94,6 @@ class PerceptionTrainConfig:
     """Linear warm-up of the learning rate from 0 over this many epochs."""
     init_output_bias: bool = True
     """Start the output at the mean training label (labels are ~4 cm off 0)."""
-    init_from: str = ""
-    """A perception checkpoint (training or best.pt) whose weights start this run: the same model,
-    temporal and memory config. Fine-tunes a model on more data (e.g. a new teacher's frames added)."""
     eval_from_step: int = 6
     """split=episode: test errors count frames from this step of an episode on (the balls drop from
     the spawn before; Table II datasets skip those 5 steps). Every model still reads the earlier frames."""

@@ -152,11 +152,14 @@ def start_from(model: torch.nn.Module, cfg: PerceptionTrainConfig, path: str) ->
 
 
 def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, resume: bool = False,
-          log: Callable[[str], object] = print, rest_positions_cm: Tensor | None = None) -> dict:
+          log: Callable[[str], object] = print, rest_positions_cm: Tensor | None = None,
+          init_from: str | Path | None = None) -> dict:
     """Train on `dataset`; return the last epoch's metrics (train with a split by frame, and test).
 
     The GCN's rest taxel positions (cm) are `rest_positions_cm` if given, else those of the
-    dataset's skin on the hand at zero joint angles.
+    dataset's skin on the hand at zero joint angles. `init_from`: a perception checkpoint of the
+    same network whose weights start the run (fine-tuning a model on more data); the checkpoints
+    name it. Not a config key, so checkpoints written before it existed still read.
     """
     from torch.utils.tensorboard import SummaryWriter
 
@@ -182,8 +185,8 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
 
     torch.manual_seed(cfg.seed)
     model = build_perception(cfg.model, cfg.temporal, cfg.memory, rest)
-    if cfg.init_from:
-        start_from(model, cfg, cfg.init_from)
+    if init_from:
+        start_from(model, cfg, str(init_from))
     elif cfg.init_output_bias:
         init_output_bias(model, train_set.frames.targets.mean(0))
     optim = make_optimizer(model, cfg.lr, cfg.weight_decay)
@@ -236,7 +239,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
         log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
         payload = {
             "config": to_dict(cfg), "epoch": epoch, "model": model.state_dict(), "optimizer": optim.state_dict(),
-            "history": history, "rest_positions_cm": rest,
+            "history": history, "rest_positions_cm": rest, "init_from": str(init_from or ""),
             "dataset": {"path": str(dataset), "num_taxels": num_taxels, "kind": meta.get("kind"),
                         "object": meta.get("object"), "frames": len(data), "split": cfg.split,
                         "extra_train_frames": sum(len(e) for e in extra)},
