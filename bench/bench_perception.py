@@ -32,12 +32,14 @@ import argparse
 import os
 import statistics
 import time
+from typing import cast
 
 import torch
 import torch.nn.functional as F
 
 from tacgnn.perception.models import MODEL_NAMES, PerceptionModelConfig, build_model
 from tacgnn.perception.models.config import PAPER_TACGNN
+from tacgnn.perception.models.tacgnn import TacGNN
 from tacgnn.perception.training import make_optimizer
 from tacgnn.runtime import keep_freed_memory
 from tacgnn.user_errors import run_script
@@ -121,7 +123,7 @@ def main() -> None:
 
     if os.getloadavg()[0] > 0.5:
         print("NOTE: other processes are using the CPUs; 2-thread numbers mostly measure waiting for them")
-    tacgnn = build_model(PerceptionModelConfig(name="tacgnn", channels=32))
+    tacgnn = cast(TacGNN, build_model(PerceptionModelConfig(name="tacgnn", channels=32)))
     for label in ("default glibc malloc", "after keep_freed_memory()", "torch graph ops (no numba)"):
         if label.startswith("after"):
             keep_freed_memory()

@@ -28,7 +28,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -83,7 +83,7 @@ def make_calibration(folder: Path, policy: str) -> Path:
     return calibrate(rest, env_config.skin).save(folder / "calibration.npz")
 
 
-def reference(policy: str, calibration: Path, task: str, episodes: int, seed: int,
+def reference(policy: str, calibration: Path, task: Literal["simple", "middle", "hard"], episodes: int, seed: int,
               env_change: Callable[[BaodingConfig], BaodingConfig] | None = None,
               on_episode: Callable[[SimHand, bool], None] | None = None) -> dict:
     """The same episodes with the controller in this process, no ROS: each command applied at the next step.

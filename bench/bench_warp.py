@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
+from typing import Literal
 
 import numpy as np
 import torch
@@ -50,7 +51,7 @@ def timed(fn, repeats: int, device: str = "cpu") -> float:
     return time.perf_counter() - start
 
 
-def bench(backend: str, num_envs: int, steps: int, device: str) -> dict:
+def bench(backend: Literal["c", "warp"], num_envs: int, steps: int, device: str) -> dict:
     cfg = BaodingConfig(num_envs=num_envs)
     cfg = replace(cfg, sim=replace(cfg.sim, backend=backend, device=device if backend == "warp" else "cpu"))
     start = time.perf_counter()

@@ -29,6 +29,7 @@ import argparse
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -64,7 +65,7 @@ def hand_limits(cfg: BaodingConfig, torque_limit: float, joints: range) -> dict:
         for _ in range(int(0.5 / dt)):
             mujoco.mj_step(model, data)
 
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     for j in joints:
         lo, hi = hand.joint_ranges[j]
         span = hi - lo

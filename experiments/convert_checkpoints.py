@@ -31,9 +31,9 @@ from typing import Any
 
 import torch
 
+import tacgnn.learning.checkpoint as ckpt
 from tacgnn.config import ConfigError, from_dict, to_dict
 from tacgnn.files import read_weights
-from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.online_perception import OnlinePerceptionConfig
 from tacgnn.perception import checkpoint as pckpt
 from tacgnn.perception.checkpoint import CheckpointError

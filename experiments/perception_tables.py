@@ -26,10 +26,11 @@ import numpy as np
 
 from tacgnn.datasets import baoding_data, grasp_data
 from tacgnn.datasets.store import read_manifest
-from tacgnn.envs.grasp import GraspConfig
+from tacgnn.envs.grasp import GraspConfig, ObjectName
 from tacgnn.files import atomic_write, atomic_write_text
 from tacgnn.perception.checkpoint import load_checkpoint
 from tacgnn.perception.evaluation import evaluate
+from tacgnn.perception.objectives import TaskName
 from tacgnn.perception.train_config import PerceptionTrainConfig
 from tacgnn.perception.training import train
 from tacgnn.provenance import provenance
@@ -47,7 +48,7 @@ PAPER_TABLE2 = {  # model: (train cm, test cm)
 # Table I's columns: the paper's four models; TacGNN at 32 channels (Table II's reference width),
 # at 64 (32 channels underfit the grasps: train error = test error) and at 128
 TABLE1_MODELS = (("mlp", 32), ("cnn", 32), ("gcn", 32), ("tacgnn", 32), ("tacgnn", 64), ("tacgnn", 128))
-OBJECTS = ("cube", "cylinder", "meat_can")
+OBJECTS: tuple[ObjectName, ...] = ("cube", "cylinder", "meat_can")
 CURVE_MODELS = (("mlp", 32), ("gcn", 32), ("tacgnn", 32))  # the dataset-size curve's models
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -85,14 +86,14 @@ def row_label(model: str, channels: int, joints: int = 0) -> str:
     return (f"{model}-{channels}" if model == "tacgnn" else model) + (" + joint angles" if joints else "")
 
 
-def run_config(task: str, model: str, channels: int, seed: int, args, max_samples: int = 0,
+def run_config(task: TaskName, model: str, channels: int, seed: int, args, max_samples: int = 0,
                joints: int = 0) -> PerceptionTrainConfig:
     cfg = PerceptionTrainConfig.for_task(task, model, epochs=args.epochs, seed=seed, max_samples=max_samples,
                                          model_kw={"channels": channels, "joint_inputs": joints, **args.model_kw})
     return replace(cfg, lr=1e-3, lr_schedule="constant", init_output_bias=False) if args.paper_setup else cfg
 
 
-def run(task: str, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = -1,
+def run(task: TaskName, model: str, channels: int, seed: int, dataset: Path, args, max_samples: int = -1,
         joints: int = 0) -> dict | None:
     max_samples = args.max_samples.get(task, 0) if max_samples < 0 else max_samples
     name = (f"{model}-{channels}" if model == "tacgnn" else model) + ("-joints" if joints else "")

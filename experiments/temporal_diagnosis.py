@@ -163,8 +163,8 @@ def main() -> None:
         p, tt = pred[rows].view(-1, 2, 3), t[rows].view(-1, 2, 3)
         straight = ((p - tt) ** 2).sum((1, 2)) <= ((p - tt.flip(1)) ** 2).sum((1, 2))
         own = torch.where(straight[:, None], tt[:, b], tt[:, 1 - b])
-        other = torch.where(straight[:, None], tt[:, 1 - b], tt[:, b])
-        to_other = (p[:, b] - other).norm(dim=-1)
+        other_target = torch.where(straight[:, None], tt[:, 1 - b], tt[:, b])
+        to_other = (p[:, b] - other_target).norm(dim=-1)
         active = test.frames.readings[rows] > 0
         near = ((test.frames.positions[rows] - own[:, None]).norm(dim=-1) < 3.0) & active
         patches = {n: float(near[:, patch == i].any(1).float().mean()) for i, n in enumerate(names)}

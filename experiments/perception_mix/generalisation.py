@@ -95,7 +95,7 @@ def main() -> None:
         controllers.update(validation="the run's mix", test="the run's mix")
     result = {"perceptions": perceptions, "datasets": datasets, "controllers": controllers, "rows": rows,
               "target_ratio": TARGET_RATIO, "frames": {name: len(d) for name, d in data.items()},
-              "provenance": provenance({**perceptions, "split_of": args.split_of or None}, None,
+              "provenance": provenance({**perceptions, **({"split_of": args.split_of} if args.split_of else {})}, None,
                                      {"datasets": datasets})}
     atomic_write_text(args.out, json.dumps(result, indent=1))
     head = "| perception | " + " | ".join(f"{d} (cm; x own)" for d in data) + " |"

@@ -19,6 +19,7 @@ import json
 import tempfile
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,7 @@ def main() -> None:
     parser.add_argument("--block", type=int, default=32)
     parser.add_argument("--out", default="results/real_hand/drift_session.json")
     args = parser.parse_args()
-    result = {name: session(args.policy, args.episodes, args.block, tracking)
+    result: dict[str, Any] = {name: session(args.policy, args.episodes, args.block, tracking)
               for name, tracking in (("tracking", True), ("fixed_baseline", False))}
     result["provenance"] = provenance({"policy": args.policy}, 0, vars(args))
     atomic_write_text(args.out, json.dumps(result, indent=1))
