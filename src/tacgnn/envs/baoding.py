@@ -437,13 +437,14 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             sim.ctrl[:] = io.target_at(0)
             return sim.step(self.substeps), self.ball_contact_forces()
         diverged = np.zeros(self.num_envs, bool)
-        peak = np.zeros_like(self.ball_contact_forces())  # forces are >= 0; their layout (sums follow it)
+        # forces are >= 0, zeros_like keeps their layout (the cost's sums follow it); else the last substep's
+        peak = np.zeros_like(self.ball_contact_forces()) if peak_wanted else None
         for substep in range(self.substeps):
             sim.ctrl[:] = io.target_at(substep)
             diverged |= sim.step(1)
-            if peak_wanted:  # else only the last substep's forces are read
+            if peak is not None:
                 np.maximum(peak, self.ball_contact_forces(), out=peak)
-        return diverged, peak if peak_wanted else self.ball_contact_forces()
+        return diverged, self.ball_contact_forces() if peak is None else peak
 
     def _late_skin(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None,
                    fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:
