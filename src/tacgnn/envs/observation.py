@@ -43,6 +43,12 @@ def action_to_target(action: np.ndarray, low: np.ndarray, high: np.ndarray,
     return target if target_ranges is None else np.clip(target, target_ranges[:, 0], target_ranges[:, 1])
 
 
+def keep_near(target: np.ndarray, measured: np.ndarray, band: float) -> np.ndarray:
+    """`target` kept within `band` rad of the `measured` joint angles (0: unchanged): the target band
+    a policy may be trained with (`target_band_rad`), applied alike in the env and on the real hand."""
+    return np.clip(target, measured - band, measured + band) if band > 0 else target
+
+
 def target_to_action(target: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """The inverse of `action_to_target` (not clipped): joint angles scaled to [-1, 1] by the ranges."""
     return 2.0 * (target - low) / (high - low) - 1.0

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from tacgnn.config import check
+from tacgnn.envs.observation import keep_near
 from tacgnn.hand.allegro import NUM_JOINTS
 from tacgnn.sim.scene import sphere_inertia
 
@@ -242,8 +243,8 @@ class HandIO:
         then inside `ranges` (16, 2): the real controller's `max_step_rad`. Unchanged when `band` is 0."""
         if band == 0:
             return target
-        measured = self.noisy_q if self.enabled else q
-        return np.clip(np.clip(target, measured - band, measured + band), ranges[:, 0], ranges[:, 1])
+        near = keep_near(target, self.noisy_q if self.enabled else q, band)
+        return np.clip(near, ranges[:, 0], ranges[:, 1])
 
     def push(self, target: np.ndarray) -> None:
         """A new control step's joint targets (N, 16)."""

@@ -216,10 +216,8 @@ class BlindController:
         """The safety rules on a target: step limit, rate limit, joint ranges (in that order)."""
         cfg = self.config
         out = target.copy()
-        trained = self.env_config.target_band_rad  # the policy's own rule: never a safety event
-        out = np.clip(out, joint_pos - trained, joint_pos + trained) if trained > 0 else out
-        near = np.clip(out, joint_pos - cfg.max_step_rad, joint_pos + cfg.max_step_rad) if cfg.max_step_rad > 0 \
-            else out
+        out = observation.keep_near(out, joint_pos, self.env_config.target_band_rad)  # the policy's: no safety event
+        near = observation.keep_near(out, joint_pos, cfg.max_step_rad)
         self.safety.note("max_step_rad", bool((near != out).any()),
                          f"max_step_rad: targets kept within {cfg.max_step_rad} rad of the measured angles")
         out = near
