@@ -171,6 +171,5 @@ def architecture_differences(stored: Mapping[str, Any], cfg: PPOConfig) -> list[
     """(key, stored, wanted) for each of `ARCHITECTURE_KEYS` where a stored PPO config (a
     checkpoint's) and `cfg` differ; a key the stored config's version did not have yet has the
     default it ran with."""
-    wanted = to_dict(cfg)
-    return [(k, stored.get(k, getattr(PPOConfig, k)), wanted[k]) for k in ARCHITECTURE_KEYS
-            if stored.get(k, getattr(PPOConfig, k)) != wanted[k]]
+    old, new = {k: stored.get(k, getattr(PPOConfig, k)) for k in ARCHITECTURE_KEYS}, to_dict(cfg)
+    return [(k, old[k], new[k]) for k in ARCHITECTURE_KEYS if old[k] != new[k]]
