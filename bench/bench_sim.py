@@ -36,12 +36,11 @@ def timed(fn, repeats: int) -> float:
     return time.perf_counter() - start
 
 
-def driver(env: BaodingEnv, kind: str) -> Callable[[], np.ndarray]:
-    """The next actions: the scripted wave's, or the shipped ground-truth policy's on the true state."""
-    if kind == "wave":
+def driver(env: BaodingEnv, act: Callable[[np.ndarray], np.ndarray] | None) -> Callable[[], np.ndarray]:
+    """The next actions: the scripted wave's (`act` None), or a ground-truth policy's on the true state."""
+    if act is None:
         wave = FingerWave(env.last_action[0], env.num_envs, seed=0)
         return lambda: wave(None)
-    act, _ = load_policy(SHIPPED_TEACHER)
     return lambda: act(env.groundtruth_obs())
 
 
@@ -50,11 +49,13 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
     """One row of the table; `nominal` replaces the nominal hand's config (e.g. another reward)."""
     cfg = (nominal or BaodingConfig()) if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
-    if drive == "policy":  # its actions mean what they meant in training
-        cfg = replace(cfg, target_band_rad=load_policy(SHIPPED_TEACHER)[1].target_band_rad)
+    act = None
+    if drive == "policy":  # the shipped ground truth; its actions mean what they meant in training
+        act, trained = load_policy(SHIPPED_TEACHER)
+        cfg = replace(cfg, target_band_rad=trained.target_band_rad)
     env = BaodingEnv(cfg)
     env.reset(seed=0)
-    next_actions = driver(env, drive)
+    next_actions = driver(env, act)
     for _ in range(20):  # warm up, get contacts going
         env.step(next_actions())
 
