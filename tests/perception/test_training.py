@@ -111,7 +111,7 @@ def test_wrong_dataset_and_config_values_are_named(dataset, tmp_path):
 
 def test_a_run_started_from_a_checkpoint_starts_where_it_ended(dataset, tmp_path):
     """init_from: one more epoch from a trained model starts at its error, far below a fresh start;
-    a checkpoint of another network is refused, naming it."""
+    a resume reads its own checkpoint; a checkpoint of another network is refused, naming it."""
     cfg = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=4, threads=1)
     trained = train(cfg, dataset, tmp_path / "first", log=quiet)
     first = tmp_path / "first" / "checkpoint.pt"
@@ -120,6 +120,11 @@ def test_a_run_started_from_a_checkpoint_starts_where_it_ended(dataset, tmp_path
     again = train(more, dataset, tmp_path / "more", log=quiet, init_from=first)
     assert load_checkpoint(tmp_path / "more" / "checkpoint.pt")["history"][0]["loss"] < 0.7 * fresh
     assert again["test/position_rmse_cm"] == pytest.approx(trained["test/position_rmse_cm"], rel=0.02)
+    # resumed, the run's weights come from its own checkpoint, and it still names where it started
+    longer = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=2, threads=1, lr=1e-6)
+    train(longer, dataset, tmp_path / "more", resume=True, log=quiet, init_from=tmp_path / "gone.pt")
+    resumed = load_checkpoint(tmp_path / "more" / "checkpoint.pt")
+    assert resumed["epoch"] == 1 and resumed["init_from"] == str(first)
     wider = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, model_kw={"channels": 64})
     with pytest.raises(CheckpointError, match="init_from .* differs in \\['model'\\]"):
         train(wider, dataset, tmp_path / "wider", log=quiet, init_from=first)

@@ -185,15 +185,19 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
 
     torch.manual_seed(cfg.seed)
     model = build_perception(cfg.model, cfg.temporal, cfg.memory, rest)
+    resuming = resume and ckpt_path.exists()
+    started_from = str(init_from or "")
     if init_from:
-        start_from(model, cfg, str(init_from))
+        if not resuming:  # a resumed run's weights come from its own checkpoint
+            start_from(model, cfg, started_from)
     elif cfg.init_output_bias:
         init_output_bias(model, train_set.frames.targets.mean(0))
     optim = make_optimizer(model, cfg.lr, cfg.weight_decay)
     history: list[dict] = []
     start_epoch = 0
-    if resume and ckpt_path.exists():
+    if resuming:
         payload = load_checkpoint(ckpt_path)
+        started_from = payload.get("init_from", started_from)
         # more epochs continue the run where the learning rate does not depend on their number
         free = ("epochs",) if cfg.lr_schedule in ("exp", "constant") else ()
         diff = [k for k in payload["config"] if k not in free and payload["config"][k] != to_dict(cfg).get(k)]
@@ -239,7 +243,7 @@ def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, 
         log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()))
         payload = {
             "config": to_dict(cfg), "epoch": epoch, "model": model.state_dict(), "optimizer": optim.state_dict(),
-            "history": history, "rest_positions_cm": rest, "init_from": str(init_from or ""),
+            "history": history, "rest_positions_cm": rest, "init_from": started_from,
             "dataset": {"path": str(dataset), "num_taxels": num_taxels, "kind": meta.get("kind"),
                         "object": meta.get("object"), "frames": len(data), "split": cfg.split,
                         "extra_train_frames": sum(len(e) for e in extra)},
