@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tacgnn.datasets import baoding_data, grasp_data
+import tacgnn.datasets.baoding_data as baoding_data
+import tacgnn.datasets.grasp_data as grasp_data
 from tacgnn.datasets.store import read_manifest
 from tacgnn.envs.grasp import GraspConfig, ObjectName
 from tacgnn.files import atomic_write, atomic_write_text

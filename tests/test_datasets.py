@@ -45,8 +45,8 @@ from tacgnn.datasets.baoding_data import BaodingDataConfig, record_shard, genera
 import tacgnn.datasets.baoding_data as bd
 cfg = BaodingDataConfig(samples=600, shard_size=200, num_envs=16)
 original = bd.record_shard
-def slow(cfg, i, controller=None):
-    out = original(cfg, i, controller)
+def slow(cfg, i, policy=None, **kw):
+    out = original(cfg, i, policy, **kw)
     print("shard", i, flush=True)
     time.sleep(30 if i == 1 else 0)  # the kill lands while shard 1 is being made
     return out
@@ -347,3 +347,38 @@ def test_random_motion_records_balls_on_the_skin(tmp_path):
     assert read_manifest(tmp_path / "ds")["metadata"]["controller"] == "RandomMotion"
     with pytest.raises(ConfigError, match="scripted"):
         dataclasses.replace(SMALL, scripted="spin")
+
+
+def test_a_blind_policy_records_the_frames_of_its_own_grip():
+    """A blind policy drives the recording on its own perception's ball positions, each shard
+    with a perception made afresh: the frames are those of the 'perceived' env, step for step;
+    the perception must come with the 'perceived' env and only with it."""
+    from dataclasses import replace
+
+    from tacgnn.datasets.baoding_data import record_shard, shard_seed
+    from tacgnn.envs.baoding import BaodingEnv
+    from tacgnn.learning.checkpoint import load_policy_file, stored_env_config
+    from tacgnn.learning.policy import SHIPPED_POLICY, perception_from_checkpoint, policy_from_checkpoint
+
+    data = load_policy_file(SHIPPED_POLICY)
+    env_cfg = replace(stored_env_config(data, SHIPPED_POLICY), task="hold")
+    act = policy_from_checkpoint(data, SHIPPED_POLICY)
+    cfg = BaodingDataConfig(samples=60, shard_size=60, num_envs=3, action_noise=0.0, env=env_cfg,
+                            settle_steps=0, keep_every=1, policy_checkpoint=str(SHIPPED_POLICY))
+    seen: list[np.ndarray] = []
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        seen.append(obs.copy())
+        return act(obs)
+
+    frames = record_shard(cfg, 0, policy, perception=lambda: perception_from_checkpoint(data))
+    seed = shard_seed(cfg, 0)
+    replay = BaodingEnv(replace(env_cfg, num_envs=3, seed=seed), perception=perception_from_checkpoint(data))
+    obs, _ = replay.reset(seed=seed)
+    for shown in seen:
+        np.testing.assert_array_equal(shown, obs)
+        obs, *_, info = replay.step(act(obs))
+    np.testing.assert_array_equal(frames["ball_pos"][-3:], info["ball_pos"][-3:])  # no env ended: 3 per step
+    assert len(seen) == 20 and np.abs(np.stack(seen)[:, :, 32:38]).max() > 0  # perceived balls, not zeros
+    with pytest.raises(ConfigError, match="env.obs_mode"):
+        record_shard(cfg, 0, policy)

@@ -128,3 +128,29 @@ def test_a_run_started_from_a_checkpoint_starts_where_it_ended(dataset, tmp_path
     wider = PerceptionTrainConfig.for_task("baoding", "tacgnn", epochs=1, threads=1, model_kw={"channels": 64})
     with pytest.raises(CheckpointError, match="init_from .* differs in \\['model'\\]"):
         train(wider, dataset, tmp_path / "wider", log=quiet, init_from=first)
+
+
+def test_a_run_can_start_from_the_perception_inside_a_blind_policy(tmp_path):
+    """init_from a blind policy file: the model starts with the weights the policy acts with; a
+    policy without a perception, or with another network, is refused, naming the file."""
+    from tacgnn.config import from_dict
+    from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER
+    from tacgnn.perception.checkpoint import build_perception
+    from tacgnn.perception.models import PerceptionModelConfig
+    from tacgnn.perception.models.temporal import MemoryConfig
+    from tacgnn.perception.training import start_from
+
+    stored = torch.load(SHIPPED_POLICY, weights_only=True)["perception"]
+    cfg = PerceptionTrainConfig(task="baoding", temporal=True, split="episode",
+                                model=from_dict(PerceptionModelConfig, stored["config"]
+                                ["model"]), memory=from_dict(MemoryConfig, stored["config"]["memory"]))
+    torch.manual_seed(0)
+    model = build_perception(cfg.model, True, cfg.memory, None)
+    start_from(model, cfg, str(SHIPPED_POLICY))
+    assert all(torch.equal(model.state_dict()[k], v) for k, v in stored["model"].items())
+    with pytest.raises(CheckpointError, match="init_from .*baoding_gt_policy.pt: a policy trained without"):
+        start_from(model, cfg, str(SHIPPED_TEACHER))
+    wider = PerceptionTrainConfig(task="baoding", temporal=True, split="episode", memory=cfg.memory,
+                                  model=from_dict(PerceptionModelConfig, {**stored["config"]["model"], "channels": 64}))
+    with pytest.raises(CheckpointError, match="differs in \\['model'\\]"):
+        start_from(build_perception(wider.model, True, wider.memory, None), wider, str(SHIPPED_POLICY))

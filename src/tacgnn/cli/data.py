@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,9 +35,11 @@ def cmd_make_dataset(args) -> int:
         cfg = baoding_data.BaodingDataConfig(samples=args.samples, shard_size=args.shard_size, seed=args.seed,
                                              env=env, policy_checkpoint=args.policy or "",
                                              **{k: v for k, v in given.items() if v is not None})
-        policy = _recording_policy(args.policy, env) if args.policy else None
+        policy, perception = _recording_policy(args.policy, env) if args.policy else (None, None)
+        if perception is not None:  # a blind policy: the recording env shows it what its perception makes
+            cfg = replace(cfg, env=replace(env, obs_mode="perceived"))
         check_writable(args.out, "dataset folder")
-        baoding_data.generate(cfg, args.out, progress=progress, policy=policy)
+        baoding_data.generate(cfg, args.out, progress=progress, policy=policy, perception=perception)
     else:
         for flag, value in (("--policy", args.policy), ("--scripted", args.scripted),
                             ("--settle-steps", args.settle_steps), ("--keep-every", args.keep_every),
@@ -51,21 +54,21 @@ def cmd_make_dataset(args) -> int:
     return 0
 
 
-def _recording_policy(path: str, env) -> Any:
-    """The ground-truth policy that drives the balls, checked against the recording env."""
-    from dataclasses import replace
-
+def _recording_policy(path: str, env) -> tuple[Any, Any]:
+    """The policy that drives the balls, checked against the recording env, and for a blind
+    policy what makes its perception afresh (each shard starts its memory from nothing)."""
     from tacgnn.learning.checkpoint import check_policy_fits, load_policy_file, stored_env_config
-    from tacgnn.learning.policy import policy_from_checkpoint
+    from tacgnn.learning.policy import perception_from_checkpoint, policy_from_checkpoint
 
     data = load_policy_file(path)
-    policy_env = stored_env_config(data, path)
-    if policy_env.obs_mode != "groundtruth":
-        raise ConfigError(f"--policy {path}: a '{policy_env.obs_mode}' policy; recording needs "
-                          "a 'groundtruth' one (it reads the true ball positions)")
-    # the policy acts on the recording env's ground-truth view: the balls shown as it was trained
-    check_policy_fits(data, replace(env, obs_mode="groundtruth"), path)
-    return policy_from_checkpoint(data, path)
+    mode = stored_env_config(data, path).obs_mode
+    if mode not in ("groundtruth", "perceived"):
+        raise ConfigError(f"--policy {path}: a '{mode}' policy; recording needs a 'groundtruth' one "
+                          "(it reads the true ball positions) or a 'perceived' one (its own perception's)")
+    # the policy acts on the recording env's view of the balls, shown as it was trained
+    check_policy_fits(data, replace(env, obs_mode=mode), path)
+    perception = None if mode == "groundtruth" else (lambda: perception_from_checkpoint(data, path))
+    return policy_from_checkpoint(data, path), perception
 
 
 def cmd_train_perception(args) -> int:
@@ -137,8 +140,8 @@ def register(sub) -> None:
     p.add_argument("--object", choices=["cube", "cylinder", "meat_can"],
                    help="grasp: the object (default: cube); --config/--set take GraspConfig keys for grasps, "
                         "e.g. --set can_face=narrow")
-    p.add_argument("--policy", help="baoding: a ground-truth PPO checkpoint drives the balls "
-                                    "(default: the --scripted controller)")
+    p.add_argument("--policy", help="baoding: a PPO checkpoint drives the balls, a ground-truth one or a blind "
+                                    "one on its own perception (default: the --scripted controller)")
     p.add_argument("--scripted", choices=["wave", "random"], help="baoding, without --policy: the finger wave or "
                    "smooth random motion of every joint (default: wave)")
     p.add_argument("--settle-steps", type=count(0), help="baoding: skip this many first steps of each episode "
@@ -160,7 +163,8 @@ def register(sub) -> None:
     p.add_argument("--max-samples", type=count(0), default=0, help="use the first this-many samples; 0: all")
     p.add_argument("--seed", type=seed, default=0, help="split, initialisation and batches")
     p.add_argument("--resume", action="store_true", help="continue the run in --run")
-    p.add_argument("--init-from", help="start from this perception checkpoint's weights (the same network)")
+    p.add_argument("--init-from", help="start from the weights of this perception checkpoint, or of the perception "
+                   "inside this blind policy file (the same network)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                    help="override training config keys (e.g. lr=1e-3 model.joint_inputs=16)")
     p.add_argument("--temporal", action="store_true",

@@ -8,7 +8,8 @@ permutation-invariant loss (`tacgnn.perception.objectives`), and the order store
 only the simulator's.
 
 Samples come from rollouts of a controller that keeps the balls moving (a trained
-ground-truth policy, or a scripted controller: `FingerWave`, `RandomMotion`). Frames of the first
+ground-truth policy, a blind policy acting on its own perception, or a scripted controller:
+`FingerWave`, `RandomMotion`). Frames of the first
 `settle_steps` steps of an episode (balls still dropping from the spawn) and the last frame of an episode that
 ended (a ball falling away) are left out; with `min_episode_steps` so are the episodes that
 end before that step.
@@ -32,6 +33,7 @@ import numpy as np
 from tacgnn.config import ConfigError, check, check_seed, to_dict
 from tacgnn.datasets.store import Field, ShardedWriter
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv
+from tacgnn.envs.observation import PROPRIO_COLUMNS
 from tacgnn.envs.scripted import FingerWave, RandomMotion
 
 SCRIPTED: dict[str, Callable[..., Callable[..., np.ndarray]]] = {"wave": FingerWave, "random": RandomMotion}
@@ -48,7 +50,9 @@ class BaodingDataConfig:
     """Record every k-th step of each env (consecutive frames are nearly identical); 1 keeps every
     frame, which sequence models need."""
     policy_checkpoint: str = ""
-    """A ground-truth PPO checkpoint to drive the balls ('' = the `scripted` controller)."""
+    """A PPO checkpoint to drive the balls ('' = the `scripted` controller): a ground-truth policy
+    (the env's obs_mode 'tactile'), or a blind one acting on its perception's ball positions (the
+    env's obs_mode 'perceived': the frames its own grip makes, for its perception to learn)."""
     scripted: Literal["wave", "random"] = "wave"
     """Without a policy: the finger wave (`FingerWave`) or smooth random joint motion (`RandomMotion`)."""
     action_noise: float = 0.1
@@ -76,7 +80,8 @@ class BaodingDataConfig:
             value = getattr(self, key)
             check(value < limit, key, f"must be below the episode's {limit} steps, got {value}")
         check(self.keep_every <= limit, "keep_every", f"must be at most the episode's {limit} steps")
-        check(self.env.obs_mode == "tactile", "env.obs_mode", "the dataset records the 'tactile' observation")
+        check(self.env.obs_mode in ("tactile", "perceived"), "env.obs_mode",
+              "the dataset records the skin: 'tactile' (or 'perceived' for a blind policy's own frames)")
 
 
 def schema(num_taxels: int) -> dict[str, Field]:
@@ -106,8 +111,10 @@ def metadata(cfg: BaodingDataConfig) -> dict:
 
 
 Policy = Callable[[np.ndarray], np.ndarray]
-"""A ground-truth policy: (N, 54) observations (60 with `ball_velocity`) -> (N, 16) actions
+"""A policy: (N, 54) observations (60 with `ball_velocity`) -> (N, 16) actions
 (`tacgnn.learning.policy.load_policy`)."""
+Perception = Callable[[], Callable[[np.ndarray, np.ndarray], np.ndarray]]
+"""Makes a fresh perception for one shard's env (a blind policy's: `BaodingEnv(perception=...)`)."""
 
 
 def shard_seed(cfg: BaodingDataConfig, index: int) -> int:
@@ -116,14 +123,22 @@ def shard_seed(cfg: BaodingDataConfig, index: int) -> int:
 
 
 def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = None,
-                 controller: Callable[[BaodingEnv, int], Callable] | None = None) -> dict[str, np.ndarray]:
+                 controller: Callable[[BaodingEnv, int], Callable] | None = None,
+                 perception: Perception | None = None) -> dict[str, np.ndarray]:
     """Roll out until one shard's worth of samples is collected; deterministic in (seed, index).
 
-    The balls are driven by `controller`, else by `policy` (the ground-truth policy named by
-    `cfg.policy_checkpoint`, loaded by the caller), else by the `scripted` controller.
+    The balls are driven by `controller`, else by `policy` (the policy named by
+    `cfg.policy_checkpoint`, loaded by the caller), else by the `scripted` controller. A blind
+    policy (`cfg.env.obs_mode` 'perceived') acts on the ball positions of `perception()`, made
+    fresh for this shard, so each shard starts its memory from nothing.
     """
     seed = shard_seed(cfg, index)
-    env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed))
+    blind = cfg.env.obs_mode == "perceived"
+    if blind != (perception is not None):
+        raise ConfigError("env.obs_mode: 'perceived' records a blind policy and needs its perception, "
+                          "and only it does")
+    env = BaodingEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed),
+                     perception=perception() if perception is not None else None)
     obs, _ = env.reset(seed=seed)
     if controller is None:
         if cfg.policy_checkpoint and policy is None:
@@ -143,7 +158,7 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
         ended = terminated | truncated
         episode_of_env += ended
         # joints of the recorded instant: the pre-reset observation of this step
-        joints = info["final_obs"]["proprio"] if "final_obs" in info else obs["proprio"]
+        joints = proprio_of(info["final_obs"] if "final_obs" in info else obs)
         keep = ~ended & (info["episode_steps"] > cfg.settle_steps)
         keep &= (np.arange(cfg.num_envs) + step) % cfg.keep_every == 0
         if keep.any():
@@ -163,6 +178,11 @@ def record_shard(cfg: BaodingDataConfig, index: int, policy: Policy | None = Non
                 count += len(part["step"])
         held.end(ended)
     return {k: np.concatenate(v)[:cfg.shard_size] for k, v in out.items()}
+
+
+def proprio_of(obs: dict | np.ndarray) -> np.ndarray:
+    """(N, 32) scaled joint angles and velocities of an observation, 'tactile' (a dict) or a vector."""
+    return obs["proprio"][:, PROPRIO_COLUMNS] if isinstance(obs, dict) else obs[:, PROPRIO_COLUMNS]
 
 
 class EpisodeFilter:
@@ -193,15 +213,16 @@ class EpisodeFilter:
 
 
 def policy_controller(policy: Policy, action_noise: float):
-    """Drive the balls with a ground-truth policy: it sees the true ball positions (in the env
-    config's ball order, with their velocities if it shows them), plus action noise."""
+    """Drive the balls with a policy, plus action noise: a ground-truth policy sees the true ball
+    positions (in the env config's ball order, with their velocities if it shows them), a blind
+    one the env's own observation (its perception's positions)."""
 
     def make(env: BaodingEnv, seed: int):
         rng = np.random.default_rng(seed)
 
-        def act(obs: dict) -> np.ndarray:
-            del obs  # the recording env shows the skin; the policy reads the ground-truth observation
-            full = env.groundtruth_obs()
+        def act(obs: dict | np.ndarray) -> np.ndarray:
+            # a 'tactile' recording env shows the skin: a ground-truth policy reads its own observation
+            full = obs if isinstance(obs, np.ndarray) else env.groundtruth_obs()
             return np.clip(policy(full) + action_noise * rng.standard_normal((len(full), 16)), -1, 1)
 
         return act
@@ -209,9 +230,11 @@ def policy_controller(policy: Policy, action_noise: float):
     return make
 
 
-def generate(cfg: BaodingDataConfig, root: str | Path, progress=None, policy: Policy | None = None) -> Path:
-    """Generate (or finish generating) the dataset in folder `root` (`policy`: see `record_shard`)."""
+def generate(cfg: BaodingDataConfig, root: str | Path, progress=None, policy: Policy | None = None,
+             perception: Perception | None = None) -> Path:
+    """Generate (or finish generating) the dataset in folder `root` (`policy`, `perception`: see
+    `record_shard`)."""
     writer = ShardedWriter(root, schema(cfg.env.skin.num_taxels), metadata(cfg),
                            num_shards=cfg.samples // cfg.shard_size, shard_size=cfg.shard_size)
-    writer.generate_missing(lambda i: record_shard(cfg, i, policy), progress=progress)
+    writer.generate_missing(lambda i: record_shard(cfg, i, policy, perception=perception), progress=progress)
     return Path(root)

@@ -26,11 +26,15 @@ from typing import Any
 import numpy as np
 import torch
 
+from tacgnn.hand.allegro import NUM_JOINTS
+
 JOINT_VEL_SCALE = 0.2
 """The paper's scale of the joint velocities in the observation."""
+PROPRIO_COLUMNS = slice(0, 2 * NUM_JOINTS)
+"""Where the observation holds the scaled joint angles, then the scaled joint velocities."""
 BALL_VALUES = 6
 """Two balls, (x, y, z) each."""
-BALL_COLUMNS = slice(32, 32 + BALL_VALUES)
+BALL_COLUMNS = slice(PROPRIO_COLUMNS.stop, PROPRIO_COLUMNS.stop + BALL_VALUES)
 """Where the observation holds the balls: after the 16 joint angles and the 16 joint velocities."""
 
 

@@ -29,7 +29,7 @@ from torch import Tensor, nn
 
 from tacgnn.config import to_dict
 from tacgnn.datasets.store import DatasetError, read_manifest
-from tacgnn.files import atomic_write_text
+from tacgnn.files import atomic_write_text, read_weights
 from tacgnn.perception.checkpoint import (
     CheckpointError,
     build_perception,
@@ -142,13 +142,21 @@ def load_extra(path: str, num_taxels: int) -> SequenceData:
 
 
 def start_from(model: torch.nn.Module, cfg: PerceptionTrainConfig, path: str) -> None:
-    """Load the weights of perception checkpoint `path` into `model`, refusing one of another network."""
-    payload = load_checkpoint(path)
+    """Load the weights of `path` into `model`, refusing another network: a perception checkpoint,
+    or a blind policy file (the perception it acts with, as its training in the loop left it)."""
+    raw = read_weights(Path(path), "perception checkpoint or blind policy")
+    if isinstance(raw, dict) and "actor_state_dict" in raw:  # a policy file (`tacgnn.learning.checkpoint`)
+        if "perception" not in raw:
+            raise CheckpointError(f"init_from {path}: a policy trained without a perception")
+        stored, weights = raw["perception"]["config"], raw["perception"]["model"]
+    else:
+        payload = load_checkpoint(path)
+        stored, weights = payload["config"], payload["model"]
     ours = to_dict(cfg)
-    diff = [k for k in ("model", "temporal", "memory") if payload["config"].get(k, ours[k]) != ours[k]]
+    diff = [k for k in ("model", "temporal", "memory") if stored.get(k, ours[k]) != ours[k]]
     if diff:
         raise CheckpointError(f"init_from {path}: its network differs in {diff}")
-    model.load_state_dict(payload["model"])
+    model.load_state_dict(weights)
 
 
 def train(cfg: PerceptionTrainConfig, dataset: str | Path, run_dir: str | Path, resume: bool = False,
