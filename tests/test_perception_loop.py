@@ -1,6 +1,7 @@
 """Perception in the RL loop: the policy sees predicted ball positions; the model learns online."""
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -315,3 +316,26 @@ def test_the_in_loop_perception_error_matches_each_frame_s_balls_in_the_better_o
     true = np.array([[0.0, 0, 0, 1, 1, 1], [0, 0, 0, 1, 1, 1]])
     perceived = np.array([[1.0, 1, 1, 0, 0, 0.1], [0, 0, 0.2, 1, 1, 1]])  # swapped and off by 0.1; in order, 0.2
     assert matched_squared_error(perceived, true) == pytest.approx(0.01 + 0.04)
+
+
+def test_export_puts_another_perception_of_the_same_network_into_a_blind_policy(tmp_path):
+    """perception_from: the exported blind policy acts with that checkpoint's weights (its actor
+    unchanged); a ground-truth policy, or a perception of another network, is refused."""
+    from tacgnn.learning.checkpoint import CheckpointError, load_policy_file
+    from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER, export_policy, load_perception
+    from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
+
+    results = Path(__file__).resolve().parent.parent / "results"
+    offline = results / "perception_mix" / "checkpoints" / "tacgnn32_temporal_mix9.pt"
+    out = export_policy(SHIPPED_POLICY, tmp_path / "blind.pt", perception_from=offline)
+    weights = load_perception_checkpoint(offline)["model"]
+    acting = load_perception(out)
+    assert acting is not None and all(torch.equal(acting.model.state_dict()[k], v) for k, v in weights.items())
+    shipped, exported = load_policy_file(SHIPPED_POLICY), load_policy_file(out)
+    assert all(torch.equal(v, exported["actor_state_dict"][k]) for k, v in shipped["actor_state_dict"].items())
+    assert exported["perception"]["config"]["pretrained"] == str(offline)
+    with pytest.raises(ConfigError, match="without a perception"):
+        export_policy(SHIPPED_TEACHER, tmp_path / "gt.pt", perception_from=offline)
+    with pytest.raises(CheckpointError, match="differs .* in \\['temporal'"):
+        export_policy(SHIPPED_POLICY, tmp_path / "x.pt",
+                      perception_from=results / "real_hand" / "checkpoints" / "tacgnn32_skin_real.pt")

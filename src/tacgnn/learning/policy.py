@@ -21,6 +21,7 @@ from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
+from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 from tacgnn.perception.checkpoint import stored_config
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
@@ -94,13 +95,16 @@ def perception_from_checkpoint(data: dict, path: str | Path = "<policy>") -> Onl
     return perception
 
 
-def export_policy(path: str | Path, out: str | Path) -> Path:
+def export_policy(path: str | Path, out: str | Path, perception_from: str | Path | None = None) -> Path:
     """Write a small file with what acting needs (actor, configs, perception), not training state.
 
     A training checkpoint holds the critic, the optimiser and the env state (~5 MB); the
     exported policy is what the demo ships (well under 1 MB) and `load_policy` reads both.
+    `path` may be an exported policy too. With `perception_from` (a `train-perception`
+    checkpoint of the same network, e.g. trained on the policy's own frames) a blind policy
+    acts with that model's weights; its config's `pretrained` names the file.
     """
-    data = ckpt.load_checkpoint(path)
+    data = ckpt.load_policy_file(path)
     slim = {"format_version": ckpt.FORMAT_VERSION, "kind": "policy", "iteration": data["iteration"],
             **{k: data[k] for k in ckpt.POLICY_KEYS}}
     if "perception" in data:
@@ -108,6 +112,17 @@ def export_policy(path: str | Path, out: str | Path) -> Path:
         for training_only in ("optimizer", "generator", "steps_seen"):
             perception.pop(training_only, None)
         slim["perception"] = perception
+    if perception_from is not None:
+        if "perception" not in slim:
+            raise ConfigError(f"{path}: a policy trained without a perception; perception_from needs a blind one")
+        payload = load_perception_checkpoint(perception_from)
+        ours = slim["perception"]["config"]
+        differ = [k for k in ("model", "temporal", "memory") if payload["config"].get(k) != ours.get(k)]
+        if differ:
+            raise ckpt.CheckpointError(f"{perception_from}: its network differs from the policy's perception "
+                                       f"in {differ}")
+        slim["perception"] = {**slim["perception"], "model": payload["model"],
+                              "config": {**ours, "pretrained": str(perception_from)}}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt.save(out, slim)
