@@ -10,7 +10,7 @@ import pytest
 
 from tacgnn.cli import main
 from tacgnn.config import ConfigError
-from tacgnn.learning.policy import SHIPPED_TEACHER
+from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER
 
 
 def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
@@ -59,6 +59,14 @@ def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
     (["train-policy", "--env", "obs_mode=perceived", "--perception", "model.channels=0"], ["'model.channels'"]),
     (["evaluate", "/no/such/policy.pt"], ["/no/such/policy.pt"]),
     (["eval-perception", "--checkpoint", "/no/such/model.pt", "--dataset", "x"], ["/no/such/model.pt"]),
+    (["export-policy", "/no/such/policy.pt", "--out", "p.pt"], ["/no/such/policy.pt"]),
+    (["export-policy", str(SHIPPED_TEACHER), "--out", "p.pt", "--perception", str(SHIPPED_TEACHER)],
+     ["baoding_gt_policy.pt", "without a perception"]),
+    (["export-policy", str(SHIPPED_POLICY), "--out", "p.pt", "--perception", str(SHIPPED_TEACHER)],
+     ["baoding_gt_policy.pt", "not a tacgnn perception checkpoint"]),
+    (["export-policy", str(SHIPPED_POLICY), "--out", "/dev/null/p.pt"], ["/dev/null"]),
+    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_POLICY), "--set", "target_band_rad=0.2"],
+     ["target_band_rad"]),
 ])
 def test_user_errors_are_one_line_with_exit_code_2(capsys, tmp_path, monkeypatch, argv, expected):
     monkeypatch.chdir(tmp_path)

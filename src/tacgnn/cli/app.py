@@ -11,6 +11,7 @@
     tacgnn train-policy --run-dir runs/gt --env obs_mode=groundtruth --ppo max_iterations=2000 [--resume]
     tacgnn evaluate runs/gt/model_002000.pt --task middle --episodes 500
     tacgnn robustness runs/gt/model_002000.pt   the policy on hands and skins as real ones differ
+    tacgnn export-policy runs/blind/model_000400.pt --out blind.pt [--perception runs/p/best.pt]
     tacgnn sysid recording.npz --out outputs/sysid_hand.yaml    per-joint stiffness/damping from steps
     tacgnn sysid --make-recording rec.npz --random-truth        a simulated recording to try it on
     tacgnn calibrate-skin rest.npz --out skin_calibration.npz   real skin: baseline, thresholds, gains
@@ -54,6 +55,17 @@ def cmd_robustness(args) -> int:
     return robustness.main(args.rest, parser_class=Parser)
 
 
+def cmd_export_policy(args) -> int:
+    """A small policy file for acting (the demo, the real hand), optionally with another perception."""
+    from tacgnn.files import check_writable
+    from tacgnn.learning.policy import export_policy
+
+    check_writable(Path(args.out).parent, "policy folder")
+    out = export_policy(args.checkpoint, args.out, perception_from=args.perception)
+    print(f"policy written: {out} ({out.stat().st_size // 1024} kB)")
+    return 0
+
+
 #: Commands that parse their own flags (--help included).
 PASSTHROUGH = {"train-policy": cmd_train_policy, "evaluate": cmd_evaluate, "robustness": cmd_robustness}
 
@@ -71,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(fn=fn)
+    p = sub.add_parser("export-policy", help="a small policy file for acting, optionally with another perception")
+    p.add_argument("checkpoint", help="a PPO checkpoint (or an exported policy)")
+    p.add_argument("--out", required=True, help="the policy file to write")
+    p.add_argument("--perception", help="a blind policy acts with this perception checkpoint's weights (the same "
+                   "network; e.g. `train-perception --init-from` on the policy's own frames)")
+    p.set_defaults(fn=cmd_export_policy)
     hardware.register(sub)
     return parser
 

@@ -87,6 +87,9 @@ def load_checkpoint(path: str | Path) -> dict:
     format version), each naming the file.
     """
     payload = read_weights(Path(path), "perception checkpoint")
+    if isinstance(payload, dict) and (payload.get("kind") not in (None, KIND) or "actor_state_dict" in payload):
+        raise CheckpointError(f"{path}: not a tacgnn perception checkpoint but a {payload.get('kind') or 'policy'} "
+                              "file (a policy holds its perception inside)")  # another file of ours: say which
     check_version(payload, path, "perception checkpoint", CHECKPOINT_VERSION)
     if payload.get("kind") != KIND:
         raise CheckpointError(f"{path}: not a tacgnn perception checkpoint (kind {payload.get('kind')!r}; a policy "
