@@ -19,10 +19,14 @@
 #    the hold task, on the same hands and the real skin, the perception trained in the loop with
 #    random-motion windows as its anchor (600 it.; BLIND_ITERATION, default 400, was chosen on
 #    evaluation seed 1 by its worst task)
-# 4. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
+# 4. the blind policy's perception on its own frames: the chosen blind checkpoint drives the recording
+#    (randomised hands, its perception in the loop; the hold, Simple and Hard), its perception is trained
+#    on them offline (8 epochs from itself, random motion and the teacher's hold frames beside them; best.pt
+#    on validation), and the policy is exported acting with it (`tacgnn export-policy --perception`)
+# 5. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
 # GT_RUN / BLIND_RUN name other run folders; BAND_RAD trains with a target band (not the shipped
 # recipe: experiments/real_hand/README.md); TEACHER_ONLY=1 stops after the teacher. Every step skips
-# what exists and resumes what was cut off, so the script can be rerun. About 1.5 h on 2 cores.
+# what exists and resumes what was cut off, so the script can be rerun. About 2 h on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 R=${GT_RUN:-runs/real_gt}
@@ -59,13 +63,26 @@ if [ ! -f "$(last $RUN 600)" ]; then
     --perception model.name=tacgnn temporal=true pretrained=$PERC/best.pt epochs=2 update_every_steps=400 \
     anchor_dataset=data/mix_random anchor_share=0.25
 fi
+stage perception on the blind policy own frames
+BLIND=$(last $RUN "$BLIND_AT")
+ON="--keep-every 1 --envs 16 --settle-steps 0 --shard-size 10000"
+for d in "hold 160000 11" "simple 80000 12" "hard 40000 13" "fresh 10000 14"; do
+  set -- $d  # the fresh frames (the hold, another seed) are for the generalisation table
+  $T make-dataset baoding --policy $BLIND --out data/blind_$1 --samples $2 --seed $3 $ON \
+    --set task=$([ $1 = fresh ] && echo hold || echo $1) randomization.enabled=true
+done
+perception_run runs/perc/blind_own 8 --task baoding --model tacgnn --channels 32 --init-from $BLIND --dataset data/blind_hold \
+  --temporal --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr=0.0005 lr_decay=0.7 val_fraction=0.1 \
+  "mix=[data/blind_simple,data/blind_hard]" "extra_train=[data/mix_random,data/mix_hold]"
+SHIPPED=$RUN/blind_own_perception.pt  # the blind policy acting with that perception: what ships
+$T export-policy $BLIND --out $SHIPPED --perception runs/perc/blind_own/best.pt
 stage validation and robustness tables
 mkdir -p results/real_hand
-for pair in "gt $TEACHER" "blind $(last $RUN "$BLIND_AT")"; do  # a real hand, evaluation seed 1 (the choice's figures)
+for pair in "gt $TEACHER" "blind $SHIPPED"; do  # a real hand, evaluation seed 1 (the choice's figures)
   set -- $pair
   $T evaluate "$2" --task all --episodes 256 --envs 128 --seed 1 --out results/real_hand/${1}_validation.json \
     --set randomization.enabled=true randomization.joint_common=0.0  # the default ranges, as "a real hand"
 done
 $T robustness "$TEACHER" --out results/real_hand/gt_robustness.json
-$T robustness "$(last $RUN "$BLIND_AT")" --out results/real_hand/blind_robustness.json
+$T robustness "$SHIPPED" --out results/real_hand/blind_robustness.json
 stage done
