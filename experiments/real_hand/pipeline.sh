@@ -19,14 +19,16 @@
 #    the hold task, on the same hands and the real skin, the perception trained in the loop with
 #    random-motion windows as its anchor (600 it.; BLIND_ITERATION, default 400, was chosen on
 #    evaluation seed 1 by its worst task)
-# 4. the blind policy's perception on its own frames: the chosen blind checkpoint drives the recording
-#    (randomised hands, its perception in the loop; the hold, Simple and Hard), its perception is trained
-#    on them offline (8 epochs from itself, random motion and the teacher's hold frames beside them; best.pt
-#    on validation), and the policy is exported acting with it (`tacgnn export-policy --perception`)
+# 4. the blind policy's perception on its own frames, twice: the chosen blind checkpoint drives the
+#    recording (randomised hands, its perception in the loop; the hold, Simple and Hard), its perception is
+#    trained on them offline (8 epochs from itself, random motion and the teacher's hold frames beside them;
+#    best.pt on validation), and the policy is exported acting with it (`tacgnn export-policy --perception`);
+#    that policy records as many frames again, added to the training side for 6 more epochs (the same
+#    validation episodes); the policy acting with that model ships
 # 5. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
 # GT_RUN / BLIND_RUN name other run folders; BAND_RAD trains with a target band (not the shipped
 # recipe: experiments/real_hand/README.md); TEACHER_ONLY=1 stops after the teacher. Every step skips
-# what exists and resumes what was cut off, so the script can be rerun. About 2 h on 2 cores.
+# what exists and resumes what was cut off, so the script can be rerun. About 2.5 h on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 R=${GT_RUN:-runs/real_gt}
@@ -74,8 +76,18 @@ done
 perception_run runs/perc/blind_own 8 --task baoding --model tacgnn --channels 32 --init-from $BLIND --dataset data/blind_hold \
   --temporal --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr=0.0005 lr_decay=0.7 val_fraction=0.1 \
   "mix=[data/blind_simple,data/blind_hard]" "extra_train=[data/mix_random,data/mix_hold]"
-SHIPPED=$RUN/blind_own_perception.pt  # the blind policy acting with that perception: what ships
-$T export-policy $BLIND --out $SHIPPED --perception runs/perc/blind_own/best.pt
+ROUND1=$RUN/blind_own_perception.pt  # the blind policy acting with that perception
+$T export-policy $BLIND --out $ROUND1 --perception runs/perc/blind_own/best.pt
+for d in "hold 160000 21" "simple 80000 22" "hard 40000 23"; do  # round 2: its frames, acting so
+  set -- $d
+  $T make-dataset baoding --policy $ROUND1 --out data/blind2_$1 --samples $2 --seed $3 $ON --set task=$1 randomization.enabled=true
+done
+perception_run runs/perc/blind_own2 6 --task baoding --model tacgnn --channels 32 --init-from runs/perc/blind_own/best.pt \
+  --dataset data/blind_hold --temporal --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr=0.0003 lr_decay=0.7 \
+  val_fraction=0.1 "mix=[data/blind_simple,data/blind_hard]" \
+  "extra_train=[data/mix_random,data/mix_hold,data/blind2_hold,data/blind2_simple,data/blind2_hard]"
+SHIPPED=$RUN/blind_own_perception2.pt  # what ships
+$T export-policy $BLIND --out $SHIPPED --perception runs/perc/blind_own2/best.pt
 stage validation and robustness tables
 mkdir -p results/real_hand
 for pair in "gt $TEACHER" "blind $SHIPPED"; do  # a real hand, evaluation seed 1 (the choice's figures)
