@@ -22,7 +22,7 @@ from tacgnn.learning import checkpoint as ckpt
 from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.online_perception import OnlinePerception, OnlinePerceptionConfig
 from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
-from tacgnn.perception.checkpoint import stored_config
+from tacgnn.perception.checkpoint import network_differences, stored_config
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
@@ -117,7 +117,7 @@ def export_policy(path: str | Path, out: str | Path, perception_from: str | Path
             raise ConfigError(f"{path}: a policy trained without a perception; perception_from needs a blind one")
         payload = load_perception_checkpoint(perception_from)
         ours = slim["perception"]["config"]
-        differ = [k for k in ("model", "temporal", "memory") if payload["config"].get(k) != ours.get(k)]
+        differ = network_differences(payload["config"], ours)
         if differ:
             raise ckpt.CheckpointError(f"{perception_from}: its network differs from the policy's perception "
                                        f"in {differ}")

@@ -78,6 +78,18 @@ def stored_config(cls: type, data: Any, path: str | Path, what: str):
         raise CheckpointError(f"{path}: its {what} does not fit this code: {err}") from None
 
 
+NETWORK_KEYS = ("model", "temporal", "memory")
+"""The perception config keys that make the network: weights load only between configs equal in them."""
+
+
+def network_differences(stored: dict, ours: dict) -> list[str]:
+    """The `NETWORK_KEYS` in which a stored perception config (a checkpoint's or a policy's, as a dict)
+    and `ours` (``to_dict`` form) make different networks; a key the stored config's version did not
+    have yet counts with the default it ran with."""
+    defaults = to_dict(PerceptionTrainConfig())
+    return [k for k in NETWORK_KEYS if stored.get(k, defaults[k]) != ours[k]]
+
+
 def load_checkpoint(path: str | Path) -> dict:
     """Read and check a perception checkpoint.
 

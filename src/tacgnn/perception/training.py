@@ -34,6 +34,7 @@ from tacgnn.perception.checkpoint import (
     CheckpointError,
     build_perception,
     load_checkpoint,
+    network_differences,
     save_checkpoint,
     with_taxels,
 )
@@ -152,8 +153,7 @@ def start_from(model: torch.nn.Module, cfg: PerceptionTrainConfig, path: str) ->
     else:
         payload = load_checkpoint(path)
         stored, weights = payload["config"], payload["model"]
-    ours = to_dict(cfg)
-    diff = [k for k in ("model", "temporal", "memory") if stored.get(k, ours[k]) != ours[k]]
+    diff = network_differences(stored, to_dict(cfg))
     if diff:
         raise CheckpointError(f"init_from {path}: its network differs in {diff}")
     model.load_state_dict(weights)
