@@ -35,5 +35,10 @@ offline_perception() {
 other_hand() {
   awk -v k=$1 'BEGIN { printf "hand.stiffness=%.4g hand.damping=%.4g ball_mass=%.4g ball_friction=%.4g hand.friction=%.4g", 3.0*0.7^k, 0.1*1.5^k, 0.15*(0.25/0.15)^k, 0.7^k, 0.7^k }'
 }
+# the real-hand recipe's soft costs (squeeze above 5 N, its tail above 8 N, action rate, effort) and its
+# blind policy's hands (half of them drawn whole: docs/results.md section 11)
+SOFT="reward.squeeze=-0.05 reward.squeeze_free_force=5.0 reward.squeeze_peak=true reward.squeeze_tail=-0.2 \
+reward.squeeze_tail_force=8.0 reward.action_rate=-0.005 reward.effort=-0.02"
+WIDE="randomization.joint_common=0.5"
 # stage NAME: a line on stderr with the seconds since the script started, to time each step
 stage() { echo "[stage +${SECONDS}s] $*" >&2; }

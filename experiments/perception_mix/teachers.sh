@@ -11,9 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 S=${1:?usage: teachers.sh SEED}
 export SEED=$S  # train_gt's seed
-source experiments/lib.sh  # train_gt, last, stage
-SOFT="reward.squeeze=-0.05 reward.squeeze_free_force=5.0 reward.squeeze_peak=true reward.squeeze_tail=-0.2 \
-reward.squeeze_tail_force=8.0 reward.action_rate=-0.005 reward.effort=-0.02"
+source experiments/lib.sh  # train_gt, last, stage, SOFT
 FINE="save_interval=50 init_noise_std=0.3 learning_rate=0.0003 schedule=fixed"
 R=runs/mix_teacher_s$S
 stage "teacher seed $S: Simple, nominal hand"

@@ -35,13 +35,10 @@ R=${GT_RUN:-runs/real_gt}
 TEACHER=${1:-$R/hold_more/model_000400.pt}
 BLIND_AT=${2:-400}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last, train_gt, perception_run, stage
-SOFT="reward.squeeze=-0.05 reward.squeeze_free_force=5.0 reward.squeeze_peak=true reward.squeeze_tail=-0.2 \
-reward.squeeze_tail_force=8.0 reward.action_rate=-0.005 reward.effort=-0.02"
+source experiments/lib.sh  # resume, last, train_gt, perception_run, stage, SOFT, WIDE
 BETA="save_interval=50 action_distribution=beta"
 FINE="$BETA learning_rate=0.0003 schedule=fixed"
 SLOW="$BETA learning_rate=0.0001 schedule=fixed"
-WIDE="randomization.joint_common=0.5"
 BAND=${BAND_RAD:+target_band_rad=$BAND_RAD}  # targets kept near the measured angles (README: not shipped)
 stage teacher
 train_gt $R/simple 300 "" "randomization.enabled=false $BAND" "$BETA"
