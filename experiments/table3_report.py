@@ -62,7 +62,7 @@ def figure(runs: dict[str, list[dict]], path: Path) -> None:
     ax.set_xticks(np.arange(len(TASKS)), ["Simple", "Middle", "Hard", "1 s hold"])
     ax.set_ylabel("success (%)")
     ax.set_ylim(50, 100)
-    ax.legend(fontsize=7, ncol=3, loc="lower left")
+    ax.legend(fontsize=7, ncol=5, loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     print(f"figure: {path}")
