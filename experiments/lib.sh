@@ -40,5 +40,7 @@ other_hand() {
 SOFT="reward.squeeze=-0.05 reward.squeeze_free_force=5.0 reward.squeeze_peak=true reward.squeeze_tail=-0.2 \
 reward.squeeze_tail_force=8.0 reward.action_rate=-0.005 reward.effort=-0.02"
 WIDE="randomization.joint_common=0.5"
+# "a real hand" for evaluation: every range of the randomisation at its default, as `tacgnn robustness` draws it
+REAL_HAND="randomization.enabled=true randomization.joint_common=0.0"
 # stage NAME: a line on stderr with the seconds since the script started, to time each step
 stage() { echo "[stage +${SECONDS}s] $*" >&2; }

@@ -28,10 +28,9 @@ SEED=${2:-0}
 ITERS=400
 TEACHER=${TEACHER:-runs/real_gt/hold_slow/model_000500.pt}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last, offline_perception, stage, SOFT, WIDE
+source experiments/lib.sh  # resume, last, offline_perception, stage, SOFT, WIDE, REAL_HAND
 [ -f "$TEACHER" ] || { echo "teacher $TEACHER not found: make it with TEACHER_ONLY=1 experiments/real_hand/pipeline.sh" >&2; exit 2; }
 OUT=results/table3_real_hand
-REAL_HAND="randomization.enabled=true randomization.joint_common=0.0"  # "a real hand", as in `tacgnn robustness`
 stage teacher frames
 DATA=data/real_hand_teacher
 $T make-dataset baoding --policy "$TEACHER" --out $DATA --samples 50000 --settle-steps 0 --seed 0 \
@@ -53,7 +52,7 @@ POLICY=$OUT/checkpoints/blind_${MODEL}_s$SEED.pt
 [ -f $POLICY ] || $T export-policy "$(last $RUN $ITERS)" --out $POLICY
 RESULT=$OUT/blind_${MODEL}_s${SEED}_model_$(printf %06d $ITERS).json
 [ -f $RESULT ] || $T evaluate $POLICY --task all --episodes 512 --envs 128 --seed 0 --out $RESULT --set $REAL_HAND
-TEACHER_RESULT=$OUT/teacher_model_000500.json
+TEACHER_RESULT=$OUT/teacher_model_000500.json  # the committed actor of the default TEACHER
 [ -f $TEACHER_RESULT ] || $T evaluate results/real_hand/checkpoints/blind_teacher.pt --task all --episodes 512 \
   --envs 128 --seed 0 --out $TEACHER_RESULT --set $REAL_HAND
 stage done

@@ -35,7 +35,7 @@ R=${GT_RUN:-runs/real_gt}
 TEACHER=${1:-$R/hold_more/model_000400.pt}
 BLIND_AT=${2:-400}
 T=.venv/bin/tacgnn
-source experiments/lib.sh  # resume, last, train_gt, perception_run, stage, SOFT, WIDE
+source experiments/lib.sh  # resume, last, train_gt, perception_run, stage, SOFT, WIDE, REAL_HAND
 BETA="save_interval=50 action_distribution=beta"
 FINE="$BETA learning_rate=0.0003 schedule=fixed"
 SLOW="$BETA learning_rate=0.0001 schedule=fixed"
@@ -89,8 +89,7 @@ stage validation and robustness tables
 mkdir -p results/real_hand
 for pair in "gt $TEACHER" "blind $SHIPPED"; do  # a real hand, evaluation seed 1 (the choice's figures)
   set -- $pair
-  $T evaluate "$2" --task all --episodes 256 --envs 128 --seed 1 --out results/real_hand/${1}_validation.json \
-    --set randomization.enabled=true randomization.joint_common=0.0  # the default ranges, as "a real hand"
+  $T evaluate "$2" --task all --episodes 256 --envs 128 --seed 1 --out results/real_hand/${1}_validation.json --set $REAL_HAND
 done
 $T robustness "$TEACHER" --out results/real_hand/gt_robustness.json
 $T robustness "$SHIPPED" --out results/real_hand/blind_robustness.json
