@@ -140,9 +140,40 @@ def test_action_rate_and_effort_costs_known_answer():
     effort = np.zeros((2, 16))
     effort[1, :3] = 1.0  # three joints at the limit
     none = np.zeros(2, bool)
-    terms = reward_terms(cfg, np.zeros(2), np.zeros((2, 16)), change, effort, none, none, none, np.zeros((2, 8)))
+    terms = reward_terms(cfg, np.zeros(2), np.zeros((2, 16)), change, effort, none, none, none, np.zeros((2, 8)),
+                         np.abs(effort))
     np.testing.assert_allclose(terms["action_rate"], [-0.16, 0.0])
     np.testing.assert_allclose(terms["effort"], [0.0, -0.3])
+    np.testing.assert_allclose(terms["saturation"], [0.0, 0.0])  # off by default
+
+
+def test_the_saturation_cost_charges_the_top_of_each_envs_own_torque_limit():
+    """saturation x sum over joints of max(|torque| / limit - knee, 0) / (1 - knee), the limit each env drew:
+    known answers, then an env whose limits are drawn (x0.8-1.2) charges by its own."""
+    from tacgnn.envs.baoding_terms import reward_terms
+
+    cfg = replace(CFG, reward=replace(CFG.reward, saturation=-0.5, saturation_knee=0.8))
+    load = np.zeros((3, 16))
+    load[0, :2] = 1.0  # two joints at the limit: 2 x -0.5
+    load[1, 5] = 0.9  # half way from the knee: -0.25
+    load[2, :] = 0.79  # all below the knee: free
+    none = np.zeros(3, bool)
+    terms = reward_terms(cfg, np.zeros(3), np.zeros((3, 16)), np.zeros((3, 16)), load, none, none, none,
+                         np.zeros((3, 8)), load)
+    np.testing.assert_allclose(terms["saturation"], [-1.0, -0.25, 0.0])
+
+    env = BaodingEnv(replace(training_env_config(), num_envs=16, tactile=False, obs_mode="groundtruth",
+                             reward=replace(CFG.reward, saturation=-1.0)))
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.random.default_rng(0).uniform(-1, 1, (16, 16)))
+    limit = env.sim.batch.expanded("actuator_forcerange")[..., 1]
+    assert np.ptp(limit[:, 0]) > 0.05  # the envs' limits differ
+    load = np.abs(env.sim.actuator_force) / limit
+    assert (load > 0.999).any() and (load < 0.9).any()
+    np.testing.assert_allclose(info["reward_terms"]["saturation"], -np.maximum(load - 0.9, 0).sum(1) / 0.1)
+    for key, value in (("reward.saturation", 0.1), ("reward.saturation_knee", 1.0)):
+        with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+            override(CFG, {key: value})
 
 
 @pytest.mark.parametrize("frames_late", [1, 2])

@@ -33,9 +33,9 @@ from tacgnn.envs.randomization import HandIO, RandomizationConfig, draw_ranges, 
 from tacgnn.hand.allegro import NUM_JOINTS
 from tacgnn.sim.backend import SkinArray, skin_positions, skin_readings
 from tacgnn.sim.scene import add_sphere, hand_scene, palm_frame, sphere_inertia
+from tacgnn.sim.skin_ring import SkinRing
 from tacgnn.sim.skin_signal import SkinSignal
 
-# re-exported: the package, its tests and scripts import these from here
 __all__ = ["BAODING_RANGES", "BaodingConfig", "BaodingEnv", "BaodingSingleEnv", "RandomizationConfig", "RewardConfig",
            "ordered_balls", "sphere_inertia", "track_ball_identities", "training_env_config"]
 
@@ -114,11 +114,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.skin_signal = SkinSignal(cfg.skin_signal, cfg.skin, n, cfg.control_dt)
         self._nominal_torque_limit = np.asarray(cfg.hand.joint_torque_limit())  # the effort cost's unit
         late = self.hand_io.skin_frames if self._obs_uses_skin and cfg.randomization.enabled else 0
-        # a ring per env, newest first from `head`: slot (head + k) % len holds the frame k steps old
-        self._skin_history = {} if late == 0 else {
-            "frames": np.zeros((n, late + 1, self.tactile.num_taxels), np.float32),
-            "positions": np.zeros((n, late + 1, self.tactile.num_taxels, 3), np.float32),
-            "head": np.zeros(n, np.int64)}
+        self._skin_ring = SkinRing(n, late + 1, self.tactile.num_taxels) if late else None
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -161,11 +157,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return forces if self.config.skin_signal.is_ideal else self.skin_signal.raw(forces, slice(None), self._rng)
 
     def _skin(self, ids: EnvIds) -> tuple[SkinArray | None, SkinArray | None]:
-        """Readings of envs `ids`, and taxel positions if the observation needs them.
-
-        Other modes get positions on demand from `taxel_positions()` (same instant,
-        until the next step), so a ground-truth run does not pay for them.
-        """
+        """Readings of envs `ids`, and taxel positions if the observation needs them (other modes get
+        them on demand from `taxel_positions()`, same instant until the next step)."""
         if not self.config.tactile:
             return None, None
         readings = skin_readings(self.tactile, self.sim, ids, self._rng)  # on Warp: from the device arrays
@@ -227,7 +220,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                 "buffers": {name: getattr(self, name).copy() for name in self.EPISODE_STATE},
                 "rng": self.rng_state(), "hand_io": self.hand_io.state_dict(),
                 "skin_signal": self.skin_signal.state_dict(),
-                "skin_history": {name: a.copy() for name, a in self._skin_history.items()}}
+                "skin_history": {} if self._skin_ring is None else self._skin_ring.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what `state_dict` saved, into an env built from the same config.
@@ -256,9 +249,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self.set_rng_state(state["rng"])
         self.hand_io.load_state_dict(state["hand_io"])
         self.skin_signal.load_state_dict(state["skin_signal"])
-        for name, mine in self._skin_history.items():
-            # head 0 is the layout of states saved before the ring (newest first from slot 0)
-            mine[...] = state["skin_history"].get(name, 0) if name == "head" else state["skin_history"][name]
+        if self._skin_ring is not None:
+            self._skin_ring.load_state_dict(state["skin_history"])
 
     # --- reset -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -450,27 +442,21 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
                    fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:
         """The skin frame the policy sees: the newest that has arrived, `hand_io.skin_delay` frames
         old (skin latency); `fresh` (after a reset) fills the envs' history with this frame."""
-        if not self._skin_history or tactile is None or taxel_pos is None:
+        if self._skin_ring is None or tactile is None or taxel_pos is None:
             return tactile, taxel_pos
-        frames, positions = self._skin_history["frames"], self._skin_history["positions"]
         tactile, taxel_pos = self.skin_to_host(tactile), self.skin_to_host(taxel_pos)
         if fresh:
-            frames[ids], positions[ids] = tactile[:, None], taxel_pos[:, None]
+            self._skin_ring.fill(ids, tactile, taxel_pos)
             return tactile, taxel_pos
-        rows, slots = np.arange(self.num_envs)[ids], frames.shape[1]
-        newest = (self._skin_history["head"][rows] - 1) % slots  # the oldest slot takes the new frame
-        self._skin_history["head"][rows] = newest
-        # one flat index per (env, slot): numpy copies whole rows, ~2x faster than a pair of index arrays
-        flat_frames, flat_positions = frames.reshape(-1, *frames.shape[2:]), positions.reshape(-1, *positions.shape[2:])
-        flat_frames[rows * slots + newest], flat_positions[rows * slots + newest] = tactile, taxel_pos
-        late = rows * slots + (newest + self.hand_io.skin_delay[rows]) % slots
-        return flat_frames[late], flat_positions[late]
+        return self._skin_ring.push(tactile, taxel_pos, self.hand_io.skin_delay)  # `ids`: every env
 
     def _reward_terms(self, d_angle, actions, action_change, success, fall, timeout,
                       ball_forces) -> dict[str, np.ndarray]:
-        effort = self.sim.actuator_force / self._nominal_torque_limit
-        return terms.reward_terms(self.config, d_angle, actions, action_change, effort, success, fall, timeout,
-                                  ball_forces)
+        drawn = self.sim.batch.expanded("actuator_forcerange")  # each env's torque limit, as drawn
+        load = np.abs(self.sim.actuator_force) / (self._nominal_torque_limit if drawn is None else drawn[..., 1])
+        return terms.reward_terms(self.config, d_angle, actions, action_change,
+                                  self.sim.actuator_force / self._nominal_torque_limit, success, fall, timeout,
+                                  ball_forces, load)
 
 
 class BaodingSingleEnv(gym.Env):

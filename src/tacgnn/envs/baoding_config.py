@@ -80,6 +80,12 @@ class RewardConfig:
     effort: float = -0.002
     """Times sum over joints of (torque / nominal torque limit)^2 (not in the paper): a hand that
     holds its motors at the limit has no margin for a weaker motor or a stiffer joint."""
+    saturation: float = 0.0
+    """Times sum over joints of how far |torque| reaches into the top `saturation_knee` share of its
+    env's torque limit, scaled to 1 at the limit (not in the paper): charges a motor held at its
+    limit, where a PD drive turns bang-bang, and leaves the grip below the knee free; 0: off."""
+    saturation_knee: float = 0.9
+    """Share of the torque limit where `saturation` starts."""
     alive: float = 0.0
     """Per step that ends with both balls in the hand (not in the paper; for the continuous
     task, where staying in the hand is worth more than one fast half turn)."""
@@ -89,7 +95,9 @@ class RewardConfig:
 
     def __post_init__(self) -> None:
         check(self.alive >= 0, "reward.alive", f"must be >= 0, got {self.alive}")
-        for name in ("action_rate", "effort"):
+        check(0.0 < self.saturation_knee < 1.0, "reward.saturation_knee",
+              f"must be in (0, 1), got {self.saturation_knee}")
+        for name in ("action_rate", "effort", "saturation"):
             check(-1e3 <= getattr(self, name) <= 0, f"reward.{name}",
                   f"is a cost: must be in [-1000, 0], got {getattr(self, name)}")
         check(self.squeeze_tail <= 0, "reward.squeeze_tail", f"is a penalty: must be <= 0, got {self.squeeze_tail}")

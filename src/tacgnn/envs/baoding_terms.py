@@ -142,7 +142,7 @@ def kick_forces(draws: np.ndarray, cfg: BaodingConfig) -> np.ndarray:
 # --- reward ------------------------------------------------------------------------------
 def reward_terms(cfg: BaodingConfig, d_angle: np.ndarray, actions: np.ndarray, action_change: np.ndarray,
                  effort: np.ndarray, success: np.ndarray, fall: np.ndarray, timeout: np.ndarray,
-                 ball_forces: np.ndarray) -> dict[str, np.ndarray]:
+                 ball_forces: np.ndarray, load: np.ndarray) -> dict[str, np.ndarray]:
     """The step's reward as named terms (N,) each, scaled by `cfg.reward`; the reward is their sum.
 
     Args:
@@ -151,6 +151,7 @@ def reward_terms(cfg: BaodingConfig, d_angle: np.ndarray, actions: np.ndarray, a
         effort: (N, 16) actuator torques over their nominal limits.
         success, fall, timeout: (N,) the step's outcome.
         ball_forces: (N, 2 x BALL_CONTACTS) normal forces (N) of the balls' strongest contacts.
+        load: (N, 16) |torque| over each env's own torque limit.
     """
     w: RewardConfig = cfg.reward
     return {
@@ -164,6 +165,8 @@ def reward_terms(cfg: BaodingConfig, d_angle: np.ndarray, actions: np.ndarray, a
         "squeeze": w.squeeze * np.maximum(ball_forces - w.squeeze_free_force, 0.0).sum(axis=1),
         "squeeze_tail": w.squeeze_tail * np.maximum(ball_forces - w.squeeze_tail_force, 0.0).sum(axis=1),
         "alive": w.alive * ~fall,
+        "saturation": 0.0 * d_angle if w.saturation == 0 else w.saturation * np.sum(
+            np.maximum(load - w.saturation_knee, 0.0), axis=1) / (1.0 - w.saturation_knee),
     }
 
 
