@@ -8,7 +8,8 @@ every control step of every episode until each env has finished one:
 * actions at +-1: the share of finger actions (index, middle, ring: 12 joints) with |a| >= 0.999,
   and near it, |a| >= 0.95 (a policy whose mean cannot reach +-1, a Beta one, may still sit next to it);
 * joint-steps at the torque limit: the share of finger joints whose actuator force is within 0.1 %
-  of its limit, at every physics substep;
+  of its limit, at every physics substep, and the share of those whose joint turns faster than
+  1 rad/s (a stroke of the gait, not a grip held against a ball);
 the thumb (nearly frozen in the Baoding task) is reported apart. The hand-ball force is the
 faithful-hand audit's (`experiments/faithful_hand/audit.py`), which reads every contact.
 """
@@ -35,7 +36,7 @@ THUMB = slice(12, 16)
 def measure(policy, cfg, episodes: int, perception=None) -> dict:
     env = BaodingEnv(replace(cfg, num_envs=episodes), perception=perception)
     limit = np.asarray(cfg.hand.joint_torque_limit())
-    at_limit, substeps = np.zeros(16), 0
+    at_limit, moving, substeps = np.zeros(16), np.zeros(16), 0
     physics_step = env.sim.step
 
     def counted(nstep: int) -> np.ndarray:
@@ -44,7 +45,9 @@ def measure(policy, cfg, episodes: int, perception=None) -> dict:
         for _ in range(nstep):
             bad |= physics_step(1)
             live = ~done
-            at_limit[:] += (np.abs(env.sim.actuator_force[live]) >= 0.999 * limit).sum(0)
+            pushing = np.abs(env.sim.actuator_force[live]) >= 0.999 * limit
+            at_limit[:] += pushing.sum(0)
+            moving[:] += (pushing & (np.abs(env.sim.qvel[live][:, env.joint_dof_adr]) > 1.0)).sum(0)
             substeps += int(live.sum())
         return bad
 
@@ -67,6 +70,7 @@ def measure(policy, cfg, episodes: int, perception=None) -> dict:
             "thumb_actions_at_limit": float(saturated[THUMB].sum() / (4 * actions_seen)),
             "finger_actions_beyond_0.95": float(near_end[FINGERS].sum() / (12 * actions_seen)),
             "finger_joint_steps_at_torque_limit": float(at_limit[FINGERS].sum() / (12 * substeps)),
+            "of_those_moving_faster_than_1_rad_s": float(moving[FINGERS].sum() / max(at_limit[FINGERS].sum(), 1)),
             "thumb_joint_steps_at_torque_limit": float(at_limit[THUMB].sum() / (4 * substeps))}
 
 
