@@ -10,9 +10,10 @@
 # 1. teacher (true ball positions, no skin): Simple on the nominal hand (300 it.), the 1 s hold on
 #    the nominal hand (300), the hold on the randomised hand with the soft costs (squeeze above 5 N,
 #    its tail above 8 N, action rate, effort: 400), on at a lower rate (500; the blind policy's
-#    teacher), then either with half the hands drawn whole (randomization.joint_common=0.5: 500) or
-#    400 more on the same hands with PPO seed 1 (hold_more). TEACHER_CHECKPOINT, default
-#    runs/real_gt/hold_more/model_000400.pt, was chosen on evaluation seed 1 by its worst task.
+#    teacher), then either with half the hands drawn whole (randomization.joint_common=0.5: 500),
+#    400 more on the same hands with PPO seed 1 (hold_more), or 600 more so with the action-rate cost
+#    x6 (hold_rate). TEACHER_CHECKPOINT, default runs/real_gt/hold_rate/model_000600.pt, was chosen on
+#    evaluation seed 1 by its worst task.
 # 2. the perception: the mixed-controller temporal TacGNN-32 of docs/results.md section 6 (its data by
 #    experiments/perception_mix/record.sh, 20 epochs, the epoch chosen on validation: best.pt)
 # 3. the blind policy: the lower-rate teacher (500 it.) fine-tuned with the perceived ball positions on
@@ -32,7 +33,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 R=${GT_RUN:-runs/real_gt}
-TEACHER=${1:-$R/hold_more/model_000400.pt}
+TEACHER=${1:-$R/hold_rate/model_000600.pt}
 BLIND_AT=${2:-400}
 T=.venv/bin/tacgnn
 source experiments/lib.sh  # resume, last, train_gt, perception_run, stage, SOFT, WIDE, REAL_HAND
@@ -47,6 +48,8 @@ train_gt $R/hold 400 "$(last $R/nominal_hold 300)" "task=hold $SOFT $BAND" "$FIN
 train_gt $R/hold_slow 500 "$(last $R/hold 400)" "task=hold $SOFT $BAND" "$SLOW"
 train_gt $R/wide 500 "$(last $R/hold_slow 500)" "task=hold $SOFT $WIDE $BAND" "$SLOW"
 train_gt $R/hold_more 400 "$(last $R/hold_slow 500)" "task=hold $SOFT $BAND" "$SLOW save_interval=100 seed=1"
+train_gt $R/hold_rate 600 "$(last $R/hold_slow 500)" "task=hold seed=1 $SOFT reward.action_rate=-0.03 $BAND" \
+  "$SLOW save_interval=100 seed=1"
 [ -n "${TEACHER_ONLY:-}" ] && exit 0
 stage perception data and training
 experiments/perception_mix/record.sh
