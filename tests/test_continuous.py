@@ -112,12 +112,12 @@ def test_alive_and_capped_rotation_terms():
     fall = np.array([False, False, True])
     none = np.zeros(3, bool)
     still = np.zeros((3, 16))
-    terms = reward_terms(cfg, d_angle, still, still, still, none, fall, none, np.zeros((3, 8)))
+    terms = reward_terms(cfg, d_angle, still, still, still, none, fall, none, np.zeros((3, 8)), still)
     np.testing.assert_allclose(terms["alive"], [0.2, 0.2, 0.0])
     np.testing.assert_allclose(terms["rotation"], [1.0, 2.0, -5.0])  # 0.5 per degree, forward capped at 4
     assert terms["fall"][2] == -100.0
     plain = reward_terms(replace(cfg, reward=RewardConfig()), d_angle, still, still, still, none, fall, none,
-                         np.zeros((3, 8)))
+                         np.zeros((3, 8)), still)
     np.testing.assert_allclose(plain["rotation"], [1.0, 5.0, -5.0])
     assert not plain["alive"].any()
 
