@@ -36,6 +36,9 @@ def test_a_state_saved_env_by_env_loads_into_the_same_ages():
     for age in range(3):  # slot (head + age) % 3 of the old layout held the frame `age` steps old
         np.testing.assert_array_equal(ring.frames[(int(ring.head) + age) % 3],
                                       [frames[e, (head[e] + age) % 3] for e in range(2)])
+    headless = SkinRing(2, 3, 4)  # older still: no head, newest first from slot 0
+    headless.load_state_dict({"frames": frames, "positions": frames[..., None].repeat(3, 3)})
+    np.testing.assert_array_equal(headless.frames, frames.transpose(1, 0, 2))
     again = SkinRing(2, 3, 4)
     again.load_state_dict(ring.state_dict())
     for name in SkinRing.STATE:

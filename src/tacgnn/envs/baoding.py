@@ -36,6 +36,7 @@ from tacgnn.sim.scene import add_sphere, hand_scene, palm_frame, sphere_inertia
 from tacgnn.sim.skin_ring import SkinRing
 from tacgnn.sim.skin_signal import SkinSignal
 
+# re-exported: the package, its tests and scripts import these from here
 __all__ = ["BAODING_RANGES", "BaodingConfig", "BaodingEnv", "BaodingSingleEnv", "RandomizationConfig", "RewardConfig",
            "ordered_balls", "sphere_inertia", "track_ball_identities", "training_env_config"]
 
@@ -441,14 +442,17 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
     def _late_skin(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None,
                    fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:
         """The skin frame the policy sees: the newest that has arrived, `hand_io.skin_delay` frames
-        old (skin latency); `fresh` (after a reset) fills the envs' history with this frame."""
+        old (skin latency); `fresh` (after a reset) fills the envs' history with this frame. A step
+        (not `fresh`) pushes every env's frame at once: `ids` is then all of them."""
         if self._skin_ring is None or tactile is None or taxel_pos is None:
             return tactile, taxel_pos
         tactile, taxel_pos = self.skin_to_host(tactile), self.skin_to_host(taxel_pos)
         if fresh:
             self._skin_ring.fill(ids, tactile, taxel_pos)
             return tactile, taxel_pos
-        return self._skin_ring.push(tactile, taxel_pos, self.hand_io.skin_delay)  # `ids`: every env
+        if not (isinstance(ids, slice) and ids == slice(None)):
+            raise ValueError("a late skin advances every env's frame at once (ids=slice(None))")
+        return self._skin_ring.push(tactile, taxel_pos, self.hand_io.skin_delay)
 
     def _reward_terms(self, d_angle, actions, action_change, success, fall, timeout,
                       ball_forces) -> dict[str, np.ndarray]:

@@ -165,8 +165,7 @@ def reward_terms(cfg: BaodingConfig, d_angle: np.ndarray, actions: np.ndarray, a
         "squeeze": w.squeeze * np.maximum(ball_forces - w.squeeze_free_force, 0.0).sum(axis=1),
         "squeeze_tail": w.squeeze_tail * np.maximum(ball_forces - w.squeeze_tail_force, 0.0).sum(axis=1),
         "alive": w.alive * ~fall,
-        "saturation": 0.0 * d_angle if w.saturation == 0 else w.saturation * np.sum(
-            np.maximum(load - w.saturation_knee, 0.0), axis=1) / (1.0 - w.saturation_knee),
+        "saturation": w.saturation * np.maximum(load - w.saturation_knee, 0.0).sum(axis=1) / (1.0 - w.saturation_knee),
     }
 
 

@@ -54,8 +54,7 @@ class SkinRing:
         return {name: getattr(self, name).copy() for name in self.STATE}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        head = np.asarray(state.get("head", 0))
-        if head.ndim == 0:
+        if "head" in state and np.ndim(state["head"]) == 0:
             for name in self.STATE:
                 getattr(self, name)[...] = state[name]
             return
@@ -63,6 +62,7 @@ class SkinRing:
         # head: newest first from slot 0): slot k takes each env's frame k steps old, head 0
         frames, positions = np.asarray(state["frames"]), np.asarray(state["positions"])
         envs, slots = np.arange(frames.shape[0]), frames.shape[1]
+        head = np.asarray(state.get("head", np.zeros(len(envs), np.int64)))
         for k in range(slots):
             self.frames[k], self.positions[k] = frames[envs, (head + k) % slots], positions[envs, (head + k) % slots]
         self.head[...] = 0
