@@ -10,13 +10,14 @@
 # 1. teacher (true ball positions, no skin): Simple on the nominal hand (300 it.), the 1 s hold on
 #    the nominal hand (300), the hold on the randomised hand with the soft costs (squeeze above 5 N,
 #    its tail above 8 N, action rate, effort: 400), on at a lower rate (500; the blind policy's
-#    teacher), then either with half the hands drawn whole (randomization.joint_common=0.5: 500),
-#    400 more on the same hands with PPO seed 1 (hold_more), or 600 more so with the action-rate cost
-#    x6 (hold_rate). TEACHER_CHECKPOINT, default runs/real_gt/hold_rate/model_000600.pt, was chosen on
-#    evaluation seed 1 by its worst task.
+#    teacher), then 600 more with the action-rate cost x6 (hold_rate; env and PPO seed 1).
+#    TEACHER_CHECKPOINT, default runs/real_gt/hold_rate/model_000600.pt, was chosen on evaluation seed 1
+#    by its worst task among the README's candidates (CANDIDATES=1 also trains two of them: half the
+#    hands drawn whole, randomization.joint_common=0.5, 500; and 400 more with PPO seed 1, hold_more).
 # 2. the perception: the mixed-controller temporal TacGNN-32 of docs/results.md section 6 (its data by
-#    experiments/perception_mix/record.sh, 20 epochs, the epoch chosen on validation: best.pt)
-# 3. the blind policy: the lower-rate teacher (500 it.) fine-tuned with the perceived ball positions on
+#    experiments/perception_mix/record.sh, 20 epochs, the epoch chosen on validation: best.pt);
+#    PERCEPTION=results/perception_mix/checkpoints/tacgnn32_temporal_mix.pt starts from the committed one
+# 3. the blind policy: the lower-rate teacher (500 it.; BLIND_PARENT names another) fine-tuned with the perceived ball positions on
 #    the hold task, on the same hands and the real skin, the perception trained in the loop with
 #    random-motion windows as its anchor (600 it.; BLIND_ITERATION, default 400, was chosen on
 #    evaluation seed 1 by its worst task)
@@ -27,7 +28,8 @@
 #    that policy records as many frames again, added to the training side for 6 more epochs (the same
 #    validation episodes); the policy acting with that model ships
 # 5. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
-# GT_RUN / BLIND_RUN name other run folders; BAND_RAD trains with a target band (not the shipped
+# GT_RUN / BLIND_RUN name other run folders, BLIND_ITERATIONS the blind run's length (600), BLIND_SET
+# more env settings for it; BAND_RAD trains with a target band (not the shipped
 # recipe: experiments/real_hand/README.md); TEACHER_ONLY=1 stops after the teacher. Every step skips
 # what exists and resumes what was cut off, so the script can be rerun. About 2.5 h on 2 cores.
 set -euo pipefail
@@ -46,23 +48,28 @@ train_gt $R/simple 300 "" "randomization.enabled=false $BAND" "$BETA"
 train_gt $R/nominal_hold 300 "$(last $R/simple 300)" "task=hold randomization.enabled=false $BAND" "$FINE"
 train_gt $R/hold 400 "$(last $R/nominal_hold 300)" "task=hold $SOFT $BAND" "$FINE"
 train_gt $R/hold_slow 500 "$(last $R/hold 400)" "task=hold $SOFT $BAND" "$SLOW"
-train_gt $R/wide 500 "$(last $R/hold_slow 500)" "task=hold $SOFT $WIDE $BAND" "$SLOW"
-train_gt $R/hold_more 400 "$(last $R/hold_slow 500)" "task=hold $SOFT $BAND" "$SLOW save_interval=100 seed=1"
 train_gt $R/hold_rate 600 "$(last $R/hold_slow 500)" "task=hold seed=1 $SOFT reward.action_rate=-0.03 $BAND" \
   "$SLOW save_interval=100 seed=1"
+if [ -n "${CANDIDATES:-}" ]; then  # the other candidates of the README's table
+  train_gt $R/wide 500 "$(last $R/hold_slow 500)" "task=hold $SOFT $WIDE $BAND" "$SLOW"
+  train_gt $R/hold_more 400 "$(last $R/hold_slow 500)" "task=hold $SOFT $BAND" "$SLOW save_interval=100 seed=1"
+fi
 [ -n "${TEACHER_ONLY:-}" ] && exit 0
 stage perception data and training
 experiments/perception_mix/record.sh
-PERC=runs/perc/mix4_c32
-perception_run $PERC 20 --task baoding --model tacgnn --channels 32 --dataset data/mix_hold --temporal --window 32 \
-  --burn-in 200 --seed 0 --set batch_size=16 lr_decay=0.85 val_fraction=0.1 "mix=[data/mix_cont,data/mix_simple,data/mix_random]"
+PERC=${PERCEPTION:-runs/perc/mix4_c32/best.pt}  # PERCEPTION: that model instead of training it again
+[ -n "${PERCEPTION:-}" ] || perception_run ${PERC%/best.pt} 20 --task baoding --model tacgnn --channels 32 \
+  --dataset data/mix_hold --temporal --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr_decay=0.85 \
+  val_fraction=0.1 "mix=[data/mix_cont,data/mix_simple,data/mix_random]"
 stage blind policy
 RUN=${BLIND_RUN:-runs/real_blind}
-if [ ! -f "$(last $RUN 600)" ]; then
-  $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND \
-    --ppo max_iterations=600 save_interval=25 init_from="$(last $R/hold_slow 500)" action_distribution=beta \
+PARENT=${BLIND_PARENT:-$(last $R/hold_slow 500)}  # BLIND_PARENT: another teacher checkpoint
+ITERATIONS=${BLIND_ITERATIONS:-600}
+if [ ! -f "$(last $RUN $ITERATIONS)" ]; then  # BLIND_SET: more env settings
+  $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND ${BLIND_SET:-} \
+    --ppo max_iterations=$ITERATIONS save_interval=25 init_from="$PARENT" action_distribution=beta \
     learning_rate=0.0001 schedule=fixed privileged_critic=true seed=0 \
-    --perception model.name=tacgnn temporal=true pretrained=$PERC/best.pt epochs=2 update_every_steps=400 \
+    --perception model.name=tacgnn temporal=true pretrained=$PERC epochs=2 update_every_steps=400 \
     anchor_dataset=data/mix_random anchor_share=0.25
 fi
 stage perception on the blind policy own frames
