@@ -5,13 +5,13 @@
 # two teachers of other seeds (experiments/perception_mix/teachers.sh: seed 3's on the hold, seed 2's
 # nominal-hand Simple stage on Simple) and smooth random motion. Held out (never trained on): the
 # scripted finger wave and another teacher (the nominal-hand teacher). Fresh frames of that
-# teacher (another seed) and of the shipped blind policy's teacher (the ground truth shipped before) for the
-# in-loop figures. About 6 minutes on 2 cores.
+# teacher (another seed), of the teacher of the blind policy shipped before and of the shipped ground
+# truth (the shipped blind policy's teacher) for the in-loop figures. About 6 minutes on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 T=.venv/bin/tacgnn
 GT=results/perception_mix/checkpoints/teacher_hold.pt  # a ground-truth policy on the hold (900 it.)
-SHIPPED=results/real_hand/checkpoints/blind_teacher.pt  # the shipped blind policy's teacher
+SHIPPED=results/real_hand/checkpoints/blind_teacher.pt  # the teacher of the blind policy shipped before
 WIDE=results/perception_mix/checkpoints/teacher_wide.pt  # the ground truth shipped before the Beta pair
 OTHER=results/real_hand/checkpoints/teacher_nominal_simple.pt
 HOLD3=results/perception_mix/checkpoints/teacher_hold_s3.pt  # another seed's teacher, randomised hold (1,000 it.)
@@ -27,3 +27,4 @@ $T make-dataset baoding --scripted wave --out data/heldout_wave --samples 10000 
 $T make-dataset baoding --policy $OTHER --out data/heldout_teacher --samples 10000 --seed 8 $ON --set task=hold randomization.enabled=true
 $T make-dataset baoding --policy $SHIPPED --out data/fresh_shipped_teacher --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true
 $T make-dataset baoding --policy $GT --out data/fresh_teacher --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true
+$T make-dataset baoding --policy src/tacgnn/assets/baoding_gt_policy.pt --out data/fresh_shipped_gt --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true
