@@ -245,6 +245,8 @@ def test_ppo_overrides(items, key):
     ("env", ["ball_mass=1e-300"], "ball_mass"),
     ("env", ["randomization.enabled=true", "randomization.ball_mass=[1e-300,0.2]"], "randomization.ball_mass"),
     ("grasp", ["control_dt=-0.5"], "control_dt"),
+    ("grasp", ["hand.friction=1.19e-21"], "hand.friction"),  # a friction MuJoCo's solver diverges on
+    ("env", ["ball_friction=1e-6"], "ball_friction"),
     ("perception", ["threads=0"], "threads"),
     ("perception", ["threads=100000"], "threads"),
     ("perception", ["model.channels=0"], "model.channels"),

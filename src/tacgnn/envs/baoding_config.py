@@ -31,7 +31,7 @@ import mujoco
 
 from tacgnn.config import check, check_seed
 from tacgnn.envs.randomization import RandomizationConfig
-from tacgnn.hand.allegro import FINGER_RANGES, NUM_JOINTS, THUMB_BAODING_RANGES, HandConfig
+from tacgnn.hand.allegro import FINGER_RANGES, MIN_FRICTION, NUM_JOINTS, THUMB_BAODING_RANGES, HandConfig
 from tacgnn.hand.skin_layout import SkinLayout, default_skin
 from tacgnn.sim.scene import SimConfig, sphere_inertia
 from tacgnn.sim.skin_signal import SkinSignalConfig
@@ -213,7 +213,8 @@ class BaodingConfig:
         check(sphere_inertia(lightest, self.ball_radius) > mujoco.mjMINVAL, "ball_radius",
               f"{self.ball_radius} m gives a {lightest} kg ball an inertia below MuJoCo's smallest "
               f"({mujoco.mjMINVAL} kg m^2)")
-        check(0 < self.ball_friction <= 100, "ball_friction", f"must be in (0, 100], got {self.ball_friction}")
+        check(MIN_FRICTION <= self.ball_friction <= 100, "ball_friction",
+              f"must be in [{MIN_FRICTION}, 100], got {self.ball_friction}")
         check(len(self.initial_joint_pos) == NUM_JOINTS, "initial_joint_pos", "needs 16 values")
         check(0 < self.success_angle_deg <= 36_000, "success_angle_deg",
               f"must be in (0, 36000] deg (100 turns), got {self.success_angle_deg}")

@@ -43,6 +43,8 @@ FINGER_RANGES = ((-0.47, 0.47), (-0.196, 1.61), (-0.174, 1.709), (-0.227, 1.618)
 THUMB_RANGES = ((0.263, 1.396), (-0.105, 1.163), (-0.189, 1.644), (-0.162, 1.719))
 THUMB_BAODING_RANGES = ((0.7, 0.9), (0.1, 0.3), (0.8, 0.9), (0.4, 0.6))
 DEFAULT_RANGES = FINGER_RANGES * 3 + THUMB_RANGES
+#: The least sliding friction a contact may have: below it MuJoCo's solver diverges (measured at 1e-6 in a grasp).
+MIN_FRICTION = 1e-4
 
 # Published Allegro geometry (m). Finger bases in the palm frame; 5 deg outward turn
 # of index and ring about the palm's x axis.
@@ -125,7 +127,8 @@ class HandConfig:
                 object.__setattr__(self, name, _per_joint(getattr(self, name)))
         check(0 <= self.armature <= 1, "hand.armature", f"must be in [0, 1] kg m^2, got {self.armature}")
         check(-90 <= self.palm_tilt_deg <= 90, "hand.palm_tilt_deg", f"must be in [-90, 90], got {self.palm_tilt_deg}")
-        check(0 < self.friction <= 100, "hand.friction", f"must be in (0, 100], got {self.friction}")
+        check(MIN_FRICTION <= self.friction <= 100, "hand.friction",
+              f"must be in [{MIN_FRICTION}, 100], got {self.friction}")
         check(0 < self.link_density <= 1e5, "hand.link_density", f"must be in (0, 1e5] kg/m^3, got {self.link_density}")
 
     def joint_target_ranges(self) -> tuple[tuple[float, float], ...]:
