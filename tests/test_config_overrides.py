@@ -9,6 +9,7 @@ clearance at spawn, which needs the compiled model.)
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import replace
 
@@ -185,8 +186,10 @@ def test_trees_round_trip_their_defaults(tree):
     assert from_dict(type(cfg), to_dict(cfg)) == cfg
 
 
-@settings(max_examples=420, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                   HealthCheck.too_slow])
+# The same 420 draws on every run, so `make test` passes or fails for a reason in the code; to explore
+# new draws: TACGNN_FUZZ=1 (each finding then goes into test_known_bad_values_are_refused_at_load_time).
+@settings(max_examples=420, deadline=None, derandomize=not os.environ.get("TACGNN_FUZZ"),
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(data=st.data())
 def test_malformed_overrides_are_refused_naming_the_key_or_work(data, tmp_path_factory):
     tree = data.draw(st.sampled_from(list(TREES)), label="tree")
@@ -255,6 +258,8 @@ def test_ppo_overrides(items, key):
     ("train-perception", ["model.sample_ratio=2"], "model.sample_ratio"),
     ("ppo", ["seed=1000000000000000000000000000000"], "seed"),  # numpy seeds stop at 2**32 - 1
     ("ppo", ["seed=-1"], "seed"),
+    ("ppo", ["entropy_coef=1e300"], "entropy_coef"),  # the losses overflow float32
+    ("ppo", ["reward_scale=1e40"], "reward_scale"),
     ("env", ["seed=4294967296"], "seed"),
     ("train-perception", ["seed=-3"], "seed"),
 ])

@@ -20,6 +20,7 @@ ARCHITECTURE_KEYS = ("actor_hidden_dims", "critic_hidden_dims", "activation", "o
 # Bounds that turn a typo (an extra zero or three) into an error at load time, not a crash mid-run.
 MAX_ENVS = 65_536
 MAX_THREADS = 1024
+MAX_COEF = 1e3  # the largest loss coefficient or reward scale taken
 
 
 @dataclass(frozen=True)
@@ -117,11 +118,13 @@ class PPOConfig:
         check(0 <= self.lam <= 1, "lam", f"needs 0 <= lam <= 1, got {self.lam}")
         check(0 < self.clip_param <= 1, "clip_param",  # the ratio is clamped to [1 - clip, 1 + clip]
               f"needs 0 < clip_param <= 1, got {self.clip_param}")
-        check(self.init_noise_std > 0, "init_noise_std", "must be positive")
+        # upper bounds far above any use, below what overflows the float32 losses (1e300 made them inf)
+        check(0 < self.init_noise_std <= 100, "init_noise_std", f"must be in (0, 100], got {self.init_noise_std}")
         check(self.max_grad_norm > 0, "max_grad_norm", "must be positive")
-        check(self.reward_scale > 0, "reward_scale", "must be positive")
-        check(self.value_loss_coef >= 0, "value_loss_coef", "must be >= 0")
-        check(self.entropy_coef >= 0, "entropy_coef", "must be >= 0")
+        check(0 < self.reward_scale <= MAX_COEF, "reward_scale",
+              f"must be in (0, {MAX_COEF:g}], got {self.reward_scale}")
+        for key in ("value_loss_coef", "entropy_coef"):
+            check(0 <= getattr(self, key) <= MAX_COEF, key, f"must be in [0, {MAX_COEF:g}], got {getattr(self, key)}")
         for key in ("actor_hidden_dims", "critic_hidden_dims"):
             dims = getattr(self, key)
             check(1 <= len(dims) <= 16 and all(1 <= d <= 8192 for d in dims), key,
