@@ -59,14 +59,17 @@ fi
 stage perception data and training
 experiments/perception_mix/record.sh
 PERC=${PERCEPTION:-results/perception_mix/checkpoints/tacgnn32_temporal_mix.pt}
-[ "$PERC" = train ] && PERC=runs/perc/mix4_c32/best.pt && perception_run ${PERC%/best.pt} 20 --task baoding --model tacgnn --channels 32 \
-  --dataset data/mix_hold --temporal --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr_decay=0.85 \
-  val_fraction=0.1 "mix=[data/mix_cont,data/mix_simple,data/mix_random]"
+if [ "$PERC" = train ]; then
+  perception_run runs/perc/mix4_c32 20 --task baoding --model tacgnn --channels 32 --dataset data/mix_hold --temporal \
+    --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr_decay=0.85 val_fraction=0.1 \
+    "mix=[data/mix_cont,data/mix_simple,data/mix_random]"
+  PERC=runs/perc/mix4_c32/best.pt
+fi
 stage blind policy
 RUN=${BLIND_RUN:-runs/real_blind}
 PARENT=${BLIND_PARENT:-$(last $R/hold_rate 600)}
 ITERATIONS=${BLIND_ITERATIONS:-450}
-if [ ! -f "$(last $RUN $ITERATIONS)" ]; then  # BLIND_SET: more env settings
+if [ ! -f "$(last $RUN $ITERATIONS)" ]; then
   $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND ${BLIND_SET:-reward.action_rate=-0.03} \
     --ppo max_iterations=$ITERATIONS save_interval=25 init_from="$PARENT" action_distribution=beta \
     learning_rate=0.0001 schedule=fixed privileged_critic=true seed=0 \
