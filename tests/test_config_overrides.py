@@ -250,6 +250,9 @@ def test_ppo_overrides(items, key):
     ("grasp", ["control_dt=-0.5"], "control_dt"),
     ("grasp", ["hand.friction=1.19e-21"], "hand.friction"),  # a friction MuJoCo's solver diverges on
     ("env", ["ball_friction=1e-6"], "ball_friction"),
+    # each bound alone is valid; their product is a friction the solver diverges on
+    ("env", ["ball_friction=1e-3", "randomization.enabled=true", "randomization.friction_scale=[0.01,1]"],
+     "randomization.friction_scale"),
     ("perception", ["threads=0"], "threads"),
     ("perception", ["threads=100000"], "threads"),
     ("perception", ["model.channels=0"], "model.channels"),
