@@ -26,8 +26,11 @@
 #    trained on them offline (8 epochs from itself, random motion and the teacher's hold frames beside them;
 #    best.pt on validation), and the policy is exported acting with it (`tacgnn export-policy --perception`);
 #    that policy records as many frames again, added to the training side for 6 more epochs (the same
-#    validation episodes); the policy acting with that model ships
-# 5. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
+#    validation episodes)
+# 5. the blind policy trained on with that perception in the loop, frozen (150 it. of the blind stage's
+#    settings from BLIND_ITERATION; POLISH_AT, default 75, chosen among 25-150 on evaluation seed 1 by its
+#    worst task): it ships
+# 6. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
 # GT_RUN / BLIND_RUN name other run folders, BLIND_ITERATIONS the blind run's length, BLIND_SET its
 # last env settings (the blind policy shipped before: BLIND_PARENT=runs/real_gt/hold_slow/model_000500.pt
 # BLIND_SET=" " BLIND_ITERATIONS=600); BAND_RAD trains with a target band (not the shipped
@@ -97,8 +100,18 @@ perception_run runs/perc/blind_own2 6 --task baoding --model tacgnn --channels 3
   --dataset data/blind_hold --temporal --window 32 --burn-in 200 --seed 0 --set batch_size=16 lr=0.0003 lr_decay=0.7 \
   val_fraction=0.1 "mix=[data/blind_simple,data/blind_hard]" \
   "extra_train=[data/mix_random,data/mix_hold,data/blind2_hold,data/blind2_simple,data/blind2_hard]"
-SHIPPED=$RUN/blind_own_perception2.pt  # what ships
-$T export-policy $BLIND --out $SHIPPED --perception runs/perc/blind_own2/best.pt
+OWN2=runs/perc/blind_own2/best.pt
+stage the blind policy, trained on with its own-frame perception frozen in the loop
+POLISH=${RUN}_own  # the blind stage's settings; the perception not updated (epochs=0)
+if [ ! -f "$(last $POLISH 150)" ]; then
+  $T train-policy --run-dir $POLISH $(resume $POLISH) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND \
+    ${BLIND_SET:-reward.action_rate=-0.03} --ppo max_iterations=150 save_interval=25 init_from="$BLIND" \
+    action_distribution=beta learning_rate=0.0001 schedule=fixed privileged_critic=true seed=0 \
+    --perception model.name=tacgnn temporal=true pretrained=$OWN2 epochs=0 update_every_steps=400 \
+    anchor_dataset=data/mix_random anchor_share=0.25
+fi
+SHIPPED=$POLISH/shipped.pt  # what ships: POLISH_AT (default 75) chosen among 25-150 on evaluation seed 1
+$T export-policy "$(last $POLISH ${POLISH_AT:-75})" --out $SHIPPED --perception $OWN2
 stage validation and robustness tables
 mkdir -p results/real_hand
 for pair in "gt $TEACHER" "blind $SHIPPED"; do  # a real hand, evaluation seed 1 (the choice's figures)
