@@ -29,7 +29,7 @@ import tacgnn.datasets.grasp_data as grasp_data
 from tacgnn.datasets.store import read_manifest
 from tacgnn.envs.grasp import GraspConfig, ObjectName
 from tacgnn.files import atomic_write, atomic_write_text
-from tacgnn.perception.checkpoint import load_checkpoint
+from tacgnn.perception.checkpoint import load_checkpoint, save_checkpoint
 from tacgnn.perception.evaluation import evaluate
 from tacgnn.perception.objectives import TaskName
 from tacgnn.perception.train_config import PerceptionTrainConfig
@@ -210,7 +210,7 @@ def main() -> None:
                 for obj in args.objects:
                     run(obj, m, ch, s, data[obj], args)
         trained, args.report = not args.report, True  # the page shows the complete runs ("not run" for others)
-        if trained:  # result files carry the command that trained them, not a later --report
+        if trained and not args.quick:  # result files carry the command that trained them, not a later --report
             write_table1_results(data, args, seeds)
         text = "\n".join(lines[:4] + table1_lines(data, args, seeds)) + "\n"
         atomic_write_text(ROOT / "results" / "table1" / f"{page_stem('perception_table1', args)}.md", text)
@@ -314,23 +314,35 @@ def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
     return lines
 
 
+def keep_weights(ckpt: Path, dest: Path) -> Path:
+    """`dest`: the finished run's checkpoint without its optimizer state (a third of the size), the
+    file the repository keeps and `tacgnn eval-perception --checkpoint` scores again."""
+    payload = {k: v for k, v in load_checkpoint(ckpt).items() if k not in ("format_version", "kind")}
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(dest, {**payload, "optimizer": {}})
+    return dest
+
+
 def write_table1_results(data: dict[str, Path], args, seeds) -> None:
     """results/table1/OBJECT_MODEL_sSEED.json of every complete Table I run this invocation
-    trained (--models, --objects): its final train and test errors, seconds per epoch and provenance."""
+    trained (--models, --objects): its final train and test errors, seconds per epoch and provenance,
+    which names the run's weights kept as results/table1/checkpoints/OBJECT_MODEL_sSEED.pt."""
     out = ROOT / "results" / "table1"
-    out.mkdir(parents=True, exist_ok=True)
     for obj in (o for o in OBJECTS if o in data):
         for m, ch in chosen(TABLE1_MODELS, args):
             for s in seeds:
                 r = run(obj, m, ch, s, data[obj], args)
                 if not r:
                     continue
-                cfg = load_checkpoint(r["ckpt"])["config"]
+                name = f"{obj}_{row_label(m, ch)}_s{s}"
+                kept = keep_weights(r["ckpt"], out / "checkpoints" / f"{name}.pt")
+                cfg = load_checkpoint(kept)["config"]
                 result = {"object": obj, "model": row_label(m, ch), "epochs": len(r["history"]), **r["final"],
                           "seconds_per_epoch": float(np.mean([h["seconds"] for h in r["history"]])),
-                          "provenance": provenance({"perception": r["ckpt"]}, s,
+                          "provenance": provenance({"perception": kept}, s,
                                                    {**cfg, "dataset": str(data[obj].relative_to(ROOT))})}
-                atomic_write_text(out / f"{obj}_{row_label(m, ch)}_s{s}.json", json.dumps(result, indent=1) + "\n")
+                result["provenance"]["checkpoints"]["perception"]["path"] = str(kept.relative_to(ROOT))
+                atomic_write_text(out / f"{name}.json", json.dumps(result, indent=1) + "\n")
 
 
 def table1_lines(data: dict[str, Path], args, seeds) -> list[str]:
