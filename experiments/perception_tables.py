@@ -314,13 +314,13 @@ def data_curve_lines(data: dict[str, Path], args, models) -> list[str]:
     return lines
 
 
-def keep_weights(ckpt: Path, dest: Path) -> Path:
-    """`dest`: the finished run's checkpoint without its optimizer state (a third of the size), the
-    file the repository keeps and `tacgnn eval-perception --checkpoint` scores again."""
+def keep_weights(ckpt: Path, dest: Path) -> dict:
+    """Write to `dest` the finished run's checkpoint without its optimizer state (a third of the size),
+    the file the repository keeps and `tacgnn eval-perception --checkpoint` scores again; return it."""
     payload = {k: v for k, v in load_checkpoint(ckpt).items() if k not in ("format_version", "kind")}
     dest.parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(dest, {**payload, "optimizer": {}})
-    return dest
+    return payload
 
 
 def write_table1_results(data: dict[str, Path], args, seeds) -> None:
@@ -335,13 +335,12 @@ def write_table1_results(data: dict[str, Path], args, seeds) -> None:
                 if not r:
                     continue
                 name = f"{obj}_{row_label(m, ch)}_s{s}"
-                kept = keep_weights(r["ckpt"], out / "checkpoints" / f"{name}.pt")
-                cfg = load_checkpoint(kept)["config"]
+                kept = out / "checkpoints" / f"{name}.pt"
+                cfg = keep_weights(r["ckpt"], kept)["config"]
                 result = {"object": obj, "model": row_label(m, ch), "epochs": len(r["history"]), **r["final"],
                           "seconds_per_epoch": float(np.mean([h["seconds"] for h in r["history"]])),
                           "provenance": provenance({"perception": kept}, s,
                                                    {**cfg, "dataset": str(data[obj].relative_to(ROOT))})}
-                result["provenance"]["checkpoints"]["perception"]["path"] = str(kept.relative_to(ROOT))
                 atomic_write_text(out / f"{name}.json", json.dumps(result, indent=1) + "\n")
 
 
