@@ -235,10 +235,9 @@ class BaodingConfig:
               f"('tactile': in its ground-truth view), not '{self.obs_mode}'")
         if self.randomization.enabled:
             self.randomization.check_latencies(self.sim.timestep)
-            lowest = min(self.hand.friction, self.ball_friction) * self.randomization.friction_scale[0]
-            check(lowest >= MIN_FRICTION, "randomization.friction_scale",
-                  f"its low end {self.randomization.friction_scale[0]} scales the lowest contact friction "
-                  f"({min(self.hand.friction, self.ball_friction)}) below {MIN_FRICTION}")
+            lowest, scale = min(self.hand.friction, self.ball_friction), self.randomization.friction_scale[0]
+            check(lowest * scale >= MIN_FRICTION, "randomization.friction_scale",
+                  f"its low end {scale} scales the lowest contact friction ({lowest}) below {MIN_FRICTION}")
             for name in ("ball_mass", "armature_scale"):  # they change the mass matrix's constants (dof_M0)
                 lo, hi = getattr(self.randomization, name)
                 check(self.sim.backend != "warp" or lo == hi, f"randomization.{name}",
