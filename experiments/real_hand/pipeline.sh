@@ -68,17 +68,20 @@ if [ "$PERC" = train ]; then
     "mix=[data/mix_cont,data/mix_simple,data/mix_random]"
   PERC=runs/perc/mix4_c32/best.pt
 fi
+# train_blind RUN ITERATIONS PARENT PERCEPTION EPOCHS: the blind policy on the teacher's hands and costs
+# (BLIND_SET), from PARENT, the temporal PERCEPTION in the loop updated EPOCHS per 400 steps (0: frozen);
+# skipped when RUN has that checkpoint, resumed when it holds an earlier one
+train_blind() {
+  [ -f "$(last $1 $2)" ] && return 0
+  $T train-policy --run-dir $1 $(resume $1) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND \
+    ${BLIND_SET:-reward.action_rate=-0.03} --ppo max_iterations=$2 save_interval=25 init_from="$3" \
+    action_distribution=beta learning_rate=0.0001 schedule=fixed privileged_critic=true seed=0 \
+    --perception model.name=tacgnn temporal=true pretrained=$4 epochs=$5 update_every_steps=400 \
+    anchor_dataset=data/mix_random anchor_share=0.25
+}
 stage blind policy
 RUN=${BLIND_RUN:-runs/real_blind}
-PARENT=${BLIND_PARENT:-$(last $R/hold_rate 600)}
-ITERATIONS=${BLIND_ITERATIONS:-450}
-if [ ! -f "$(last $RUN $ITERATIONS)" ]; then
-  $T train-policy --run-dir $RUN $(resume $RUN) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND ${BLIND_SET:-reward.action_rate=-0.03} \
-    --ppo max_iterations=$ITERATIONS save_interval=25 init_from="$PARENT" action_distribution=beta \
-    learning_rate=0.0001 schedule=fixed privileged_critic=true seed=0 \
-    --perception model.name=tacgnn temporal=true pretrained=$PERC epochs=2 update_every_steps=400 \
-    anchor_dataset=data/mix_random anchor_share=0.25
-fi
+train_blind $RUN ${BLIND_ITERATIONS:-450} "${BLIND_PARENT:-$(last $R/hold_rate 600)}" $PERC 2
 stage perception on the blind policy own frames
 BLIND=$(last $RUN "$BLIND_AT")
 ON="--keep-every 1 --envs 16 --settle-steps 0 --shard-size 10000"
@@ -102,14 +105,8 @@ perception_run runs/perc/blind_own2 6 --task baoding --model tacgnn --channels 3
   "extra_train=[data/mix_random,data/mix_hold,data/blind2_hold,data/blind2_simple,data/blind2_hard]"
 OWN2=runs/perc/blind_own2/best.pt
 stage the blind policy, trained on with its own-frame perception frozen in the loop
-POLISH=${RUN}_own  # the blind stage's settings; the perception not updated (epochs=0)
-if [ ! -f "$(last $POLISH 150)" ]; then
-  $T train-policy --run-dir $POLISH $(resume $POLISH) --env obs_mode=perceived task=hold $SOFT $WIDE $BAND \
-    ${BLIND_SET:-reward.action_rate=-0.03} --ppo max_iterations=150 save_interval=25 init_from="$BLIND" \
-    action_distribution=beta learning_rate=0.0001 schedule=fixed privileged_critic=true seed=0 \
-    --perception model.name=tacgnn temporal=true pretrained=$OWN2 epochs=0 update_every_steps=400 \
-    anchor_dataset=data/mix_random anchor_share=0.25
-fi
+POLISH=${RUN}_own
+train_blind $POLISH 150 "$BLIND" $OWN2 0
 SHIPPED=$POLISH/shipped.pt  # what ships: POLISH_AT (default 75) chosen among 25-150 on evaluation seed 1
 $T export-policy "$(last $POLISH ${POLISH_AT:-75})" --out $SHIPPED --perception $OWN2
 stage validation and robustness tables
