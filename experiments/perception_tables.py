@@ -2,8 +2,8 @@
 
     .venv/bin/python experiments/perception_tables.py [--quick] [--baoding-data DIR]
 
-Makes the datasets it needs under data/ (resumable; Baoding frames from the shipped
-ground-truth policy, src/tacgnn/assets/baoding_gt_policy.pt, unless --baoding-data names an
+Makes the datasets it needs under data/ (resumable; Baoding frames from the
+ground-truth policy trained by PPO, results/real_hand/checkpoints/gt_ppo.pt, unless --baoding-data names an
 existing dataset), trains every model x seed under
 runs/perception/ (each run resumable), and writes results/table2/perception_results.md
 (Tables II and I, the robustness table) and results/table2/perception_results.png (learning
@@ -54,7 +54,7 @@ CURVE_MODELS = (("mlp", 32), ("gcn", 32), ("tacgnn", 32))  # the dataset-size cu
 ROOT = Path(__file__).resolve().parents[1]
 
 
-GT_POLICY = ROOT / "src" / "tacgnn" / "assets" / "baoding_gt_policy.pt"
+GT_POLICY = ROOT / "results" / "real_hand" / "checkpoints" / "gt_ppo.pt"  # trained by PPO on the true positions
 
 
 def ensure_datasets(args) -> dict[str, Path]:
@@ -170,7 +170,7 @@ def main() -> None:
                         help="the paper's loop and TacGNN (lr 1e-3 constant, positions only, last-layer pool) "
                              "instead of our training defaults")
     parser.add_argument("--baoding-data", default="", help="an existing Baoding dataset (else made from the "
-                        "shipped ground-truth policy)")
+                        "ground-truth policy trained by PPO, results/real_hand/checkpoints/gt_ppo.pt)")
     parser.add_argument("--baoding-samples", type=int, default=25_000,
                         help="frames used for Table II (the first ones of the dataset)")
     parser.add_argument("--grasp-samples", type=int, default=20_000,

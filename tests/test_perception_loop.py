@@ -339,3 +339,26 @@ def test_export_puts_another_perception_of_the_same_network_into_a_blind_policy(
     with pytest.raises(CheckpointError, match="differs .* in \\['temporal'"):
         export_policy(SHIPPED_POLICY, tmp_path / "x.pt",
                       perception_from=results / "real_hand" / "checkpoints" / "tacgnn32_skin_real.pt")
+
+
+def test_ground_truth_export_is_the_blind_actor_reading_the_true_balls(tmp_path):
+    """ground_truth: the blind policy's actor, unchanged, in a ground-truth env (no perception, no
+    skin); it acts there as the blind policy's actor does on the same observation. A policy without a
+    perception, or another perception beside it, is refused."""
+    from tacgnn.learning.checkpoint import load_policy_file, stored_env_config
+    from tacgnn.learning.evaluate import evaluate
+    from tacgnn.learning.policy import SHIPPED_POLICY, export_policy, load_policy
+
+    out = export_policy(SHIPPED_POLICY, tmp_path / "gt.pt", ground_truth=True)
+    exported, blind = load_policy_file(out), load_policy_file(SHIPPED_POLICY)
+    assert "perception" not in exported
+    env = stored_env_config(exported, out)
+    assert (env.obs_mode, env.tactile) == ("groundtruth", False)
+    assert env.randomization == stored_env_config(blind, SHIPPED_POLICY).randomization
+    obs = np.random.default_rng(0).standard_normal((5, 54)).astype(np.float32)
+    assert np.array_equal(load_policy(out)[0](obs), load_policy(SHIPPED_POLICY)[0](obs))
+    assert evaluate(out, episodes=2, num_envs=2)["episodes"] == 2
+    with pytest.raises(ConfigError, match="without a perception"):
+        export_policy(out, tmp_path / "again.pt", ground_truth=True)
+    with pytest.raises(ConfigError, match="takes no perception"):
+        export_policy(SHIPPED_POLICY, tmp_path / "x.pt", ground_truth=True, perception_from=SHIPPED_POLICY)

@@ -27,4 +27,4 @@ $T make-dataset baoding --scripted wave --out data/heldout_wave --samples 10000 
 $T make-dataset baoding --policy $OTHER --out data/heldout_teacher --samples 10000 --seed 8 $ON --set task=hold randomization.enabled=true
 $T make-dataset baoding --policy $SHIPPED --out data/fresh_shipped_teacher --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true
 $T make-dataset baoding --policy $GT --out data/fresh_teacher --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true
-$T make-dataset baoding --policy src/tacgnn/assets/baoding_gt_policy.pt --out data/fresh_shipped_gt --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true
+$T make-dataset baoding --policy results/real_hand/checkpoints/gt_ppo.pt --out data/fresh_shipped_gt --samples 10000 --seed 9 $ON --set task=hold randomization.enabled=true

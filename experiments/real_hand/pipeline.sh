@@ -30,7 +30,10 @@
 # 5. the blind policy trained on with that perception in the loop, frozen (150 it. of the blind stage's
 #    settings from BLIND_ITERATION; POLISH_AT, default 75, chosen among 25-150 on evaluation seed 1 by its
 #    worst task): it ships
-# 6. validation (seed 1) of the chosen pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
+# 6. the ground-truth policy that ships: that blind policy's actor reading the true ball positions
+#    (`tacgnn export-policy --ground-truth`), gentler than the teacher (results/real_hand/checkpoints/gt_ppo.pt
+#    is the teacher of step 1 as it shipped before)
+# 7. validation (seed 1) of the shipped pair, robustness tables (seed 0) -> results/real_hand/{gt,blind}_robustness.{json,md}
 # GT_RUN / BLIND_RUN name other run folders, BLIND_ITERATIONS the blind run's length, BLIND_SET its
 # last env settings (the blind policy shipped before: BLIND_PARENT=runs/real_gt/hold_slow/model_000500.pt
 # BLIND_SET=" " BLIND_ITERATIONS=600); BAND_RAD trains with a target band (not the shipped
@@ -109,12 +112,14 @@ POLISH=${RUN}_own
 train_blind $POLISH 150 "$BLIND" $OWN2 0
 SHIPPED=$POLISH/shipped.pt  # what ships: POLISH_AT (default 75) chosen among 25-150 on evaluation seed 1
 $T export-policy "$(last $POLISH ${POLISH_AT:-75})" --out $SHIPPED --perception $OWN2
+SHIPPED_GT=$POLISH/shipped_gt.pt
+$T export-policy $SHIPPED --out $SHIPPED_GT --ground-truth
 stage validation and robustness tables
 mkdir -p results/real_hand
-for pair in "gt $TEACHER" "blind $SHIPPED"; do  # a real hand, evaluation seed 1 (the choice's figures)
+for pair in "gt $SHIPPED_GT" "blind $SHIPPED"; do  # a real hand, evaluation seed 1 (the choice's figures)
   set -- $pair
   $T evaluate "$2" --task all --episodes 256 --envs 128 --seed 1 --out results/real_hand/${1}_validation.json --set $REAL_HAND
 done
-$T robustness "$TEACHER" --out results/real_hand/gt_robustness.json
+$T robustness "$SHIPPED_GT" --out results/real_hand/gt_robustness.json
 $T robustness "$SHIPPED" --out results/real_hand/blind_robustness.json
 stage done

@@ -11,7 +11,7 @@
     tacgnn train-policy --run-dir runs/gt --env obs_mode=groundtruth --ppo max_iterations=2000 [--resume]
     tacgnn evaluate runs/gt/model_002000.pt --task middle --episodes 500
     tacgnn robustness runs/gt/model_002000.pt   the policy on hands and skins as real ones differ
-    tacgnn export-policy runs/blind/model_000400.pt --out blind.pt [--perception runs/p/best.pt]
+    tacgnn export-policy runs/blind/model_000400.pt --out blind.pt [--perception runs/p/best.pt | --ground-truth]
     tacgnn sysid recording.npz --out outputs/sysid_hand.yaml    per-joint stiffness/damping from steps
     tacgnn sysid --make-recording rec.npz --random-truth        a simulated recording to try it on
     tacgnn calibrate-skin rest.npz --out skin_calibration.npz   real skin: baseline, thresholds, gains
@@ -61,7 +61,7 @@ def cmd_export_policy(args) -> int:
     from tacgnn.learning.policy import export_policy
 
     check_writable(Path(args.out).parent, "policy folder")
-    out = export_policy(args.checkpoint, args.out, perception_from=args.perception)
+    out = export_policy(args.checkpoint, args.out, perception_from=args.perception, ground_truth=args.ground_truth)
     print(f"policy written: {out} ({out.stat().st_size // 1024} kB)")
     return 0
 
@@ -88,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="the policy file to write")
     p.add_argument("--perception", help="a blind policy acts with this perception checkpoint's weights (the same "
                    "network; e.g. `train-perception --init-from` on the policy's own frames)")
+    p.add_argument("--ground-truth", action="store_true", help="a blind policy's actor reading the true ball "
+                   "positions instead of its perception's: a ground-truth policy with the blind policy's grip")
     p.set_defaults(fn=cmd_export_policy)
     hardware.register(sub)
     return parser

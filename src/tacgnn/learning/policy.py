@@ -29,8 +29,10 @@ SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
 """The blind policy the demo and the real-hand controller run: Beta actions, a temporal TacGNN in the
 loop, trained on hands drawn as real ones differ and on the real skin (docs/results.md, section 11)."""
 SHIPPED_TEACHER = ASSETS / "baoding_gt_policy.pt"
-"""The ground-truth policy shipped beside it (true ball positions), its teacher, trained on the same
-hands (`experiments/real_hand/pipeline.sh`)."""
+"""The ground-truth policy shipped beside it: its actor reading the true ball positions
+(`export_policy(..., ground_truth=True)`), the teacher of datasets and the real hand's reference.
+The policy the blind one was trained from, trained by PPO on the true positions, is
+results/real_hand/checkpoints/gt_ppo.pt (`experiments/real_hand/pipeline.sh`)."""
 
 
 def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], BaodingConfig]:
@@ -95,16 +97,24 @@ def perception_from_checkpoint(data: dict, path: str | Path = "<policy>") -> Onl
     return perception
 
 
-def export_policy(path: str | Path, out: str | Path, perception_from: str | Path | None = None) -> Path:
+def export_policy(path: str | Path, out: str | Path, perception_from: str | Path | None = None,
+                  ground_truth: bool = False) -> Path:
     """Write a small file with what acting needs (actor, configs, perception), not training state.
 
     A training checkpoint holds the critic, the optimiser and the env state (~5 MB); the
     exported policy is what the demo ships (well under 1 MB) and `load_policy` reads both.
     `path` may be an exported policy too. With `perception_from` (a `train-perception`
     checkpoint of the same network, e.g. trained on the policy's own frames) a blind policy
-    acts with that model's weights; its config's `pretrained` names the file.
+    acts with that model's weights; its config's `pretrained` names the file. With
+    `ground_truth` a blind policy's actor reads the true ball positions instead of its
+    perception's (the observation's layout is the same): a ground-truth policy with the blind
+    policy's grip (section 11 of the report: gentler than the teacher it was trained from).
     """
     data = ckpt.load_policy_file(path)
+    if ground_truth and "perception" not in data:
+        raise ConfigError(f"{path}: a policy trained without a perception; a ground-truth export needs a blind one")
+    if ground_truth and perception_from is not None:
+        raise ConfigError("a ground-truth export reads the true ball positions: it takes no perception")
     slim = {"format_version": ckpt.FORMAT_VERSION, "kind": "policy", "iteration": data["iteration"],
             **{k: data[k] for k in ckpt.POLICY_KEYS}}
     if "perception" in data:
@@ -123,6 +133,9 @@ def export_policy(path: str | Path, out: str | Path, perception_from: str | Path
                                        f"in {differ}")
         slim["perception"] = {**slim["perception"], "model": payload["model"],
                               "config": {**ours, "pretrained": str(perception_from)}}
+    if ground_truth:
+        del slim["perception"]
+        slim["env_config"] = {**slim["env_config"], "obs_mode": "groundtruth", "tactile": False}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     ckpt.save(out, slim)
