@@ -74,7 +74,7 @@ def run(checkpoint: str, overrides: dict[str, Any], episodes: int, num_envs: int
         going = ~(terminated | truncated) & (info["episode_steps"] >= PERCEPTION_FROM_STEP)
         errors = matched(env.perceived_balls[going], now[going])
         touch = touched_balls(info["tactile"][going], info["taxel_pos"][going], info["ball_pos"][going])
-        delay = env.hand_io.skin_delay[going] if env._skin_ring is not None else np.zeros(int(going.sum()), np.int64)
+        delay = env.skin_frames_late()[going]
         seen = np.stack(history)[delay, np.flatnonzero(going)]  # the true positions at the frame's instant
         for name, values in (("all", errors), ("touched", errors[touch]), ("untouched", errors[~touch]),
                              ("latency floor", matched(seen, now[going]))):

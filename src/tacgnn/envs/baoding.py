@@ -150,6 +150,12 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         return observation.assemble(self.joint_pos, self.joint_vel, balls, self.last_action, self.joint_low,
                                     self.joint_high)
 
+    def skin_frames_late(self) -> np.ndarray:
+        """(N,) how many control steps old the skin frame each env's observation shows is (0: this step's)."""
+        if self._skin_ring is None:
+            return np.zeros(self.num_envs, np.int64)
+        return self.hand_io.skin_delay.copy()
+
     def raw_skin(self) -> np.ndarray:
         """(N, T) what the skin's driver reports now, before any calibration: the real skin's raw
         values (advancing it one frame), or the ideal skin's forces. For the simulated hand behind
