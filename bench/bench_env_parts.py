@@ -20,7 +20,7 @@ from typing import Any
 
 from tacgnn.envs import baoding, baoding_terms, randomization
 from tacgnn.envs.baoding import BaodingEnv, training_env_config
-from tacgnn.learning.policy import SHIPPED_TEACHER, load_policy
+from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, load_policy
 from tacgnn.sim import skin_signal, tactile
 from tacgnn.user_errors import run_script
 
@@ -55,7 +55,7 @@ def main() -> None:
     spent: dict[str, float] = defaultdict(float)
     for owner, name, label in PARTS:
         setattr(owner, name, timed(spent, label, getattr(owner, name)))
-    act, trained = load_policy(SHIPPED_TEACHER)
+    act, trained = load_policy(SHIPPED_GROUND_TRUTH)
     cfg = replace(training_env_config(), obs_mode="tactile", num_envs=args.envs,
                   target_band_rad=trained.target_band_rad)
     env = BaodingEnv(cfg)

@@ -25,7 +25,7 @@ import numpy as np
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, training_env_config
 from tacgnn.envs.scripted import FingerWave
-from tacgnn.learning.policy import SHIPPED_TEACHER, load_policy
+from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, load_policy
 from tacgnn.user_errors import run_script
 
 
@@ -51,7 +51,7 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
     act = None
     if drive == "policy":  # the shipped ground truth; its actions mean what they meant in training
-        act, trained = load_policy(SHIPPED_TEACHER)
+        act, trained = load_policy(SHIPPED_GROUND_TRUTH)
         cfg = replace(cfg, target_band_rad=trained.target_band_rad)
     env = BaodingEnv(cfg)
     env.reset(seed=0)

@@ -10,7 +10,7 @@ import pytest
 
 from tacgnn.cli import main
 from tacgnn.config import ConfigError
-from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER
+from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, SHIPPED_POLICY
 
 
 def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
@@ -38,15 +38,17 @@ def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
     (["make-dataset", "baoding", "--out", "/dev/null/ds", "--samples", "10", "--shard-size", "10"], ["/dev/null"]),
     (["make-dataset", "baoding", "--out", "unused", "--samples", "100", "--shard-size", "30"], ["'samples'"]),
     (["make-dataset", "grasp", "--out", "unused", "--set", "settle_steps=0"], ["'settle_steps'"]),
-    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_TEACHER), "--set", "ball_order=canonical"],
+    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_GROUND_TRUTH), "--set",
+      "ball_order=canonical"],
      ["trained with ball_order=as_simulated", "--set ball_order=as_simulated"]),
-    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_TEACHER), "--set", "ball_velocity=true"],
+    (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_GROUND_TRUTH), "--set",
+      "ball_velocity=true"],
      ["trained with ball_velocity=False", "--set ball_velocity=false"]),
-    (["evaluate", str(SHIPPED_TEACHER), "--episodes", "1", "--set", "ball_velocity=true"],
+    (["evaluate", str(SHIPPED_GROUND_TRUTH), "--episodes", "1", "--set", "ball_velocity=true"],
      ["trained with ball_velocity=False", "--set ball_velocity=false"]),
-    (["evaluate", str(SHIPPED_TEACHER), "--episodes", "1", "--set", "target_band_rad=0.2"],
+    (["evaluate", str(SHIPPED_GROUND_TRUTH), "--episodes", "1", "--set", "target_band_rad=0.2"],
      ["trained with target_band_rad=0.0", "--set target_band_rad=0.0"]),
-    (["evaluate", str(SHIPPED_TEACHER), "--episodes", "1", "--set", "target_band_rad=-1"], ["'target_band_rad'"]),
+    (["evaluate", str(SHIPPED_GROUND_TRUTH), "--episodes", "1", "--set", "target_band_rad=-1"], ["'target_band_rad'"]),
     (["train-perception", "--dataset", "x", "--run", "y", "--set", "threads=0"], ["'threads'"]),
     (["train-perception", "--dataset", "x", "--run", "y", "--set", "model.channels=-3"], ["'model.channels'"]),
     (["train-perception", "--dataset", "/no/such/dataset", "--run", "y"], ["/no/such/dataset"]),
@@ -60,9 +62,9 @@ def _one_line_error(capsys, argv: list[str], *expected: str) -> str:
     (["evaluate", "/no/such/policy.pt"], ["/no/such/policy.pt"]),
     (["eval-perception", "--checkpoint", "/no/such/model.pt", "--dataset", "x"], ["/no/such/model.pt"]),
     (["export-policy", "/no/such/policy.pt", "--out", "p.pt"], ["/no/such/policy.pt"]),
-    (["export-policy", str(SHIPPED_TEACHER), "--out", "p.pt", "--perception", str(SHIPPED_TEACHER)],
+    (["export-policy", str(SHIPPED_GROUND_TRUTH), "--out", "p.pt", "--perception", str(SHIPPED_GROUND_TRUTH)],
      ["baoding_gt_policy.pt", "without a perception"]),
-    (["export-policy", str(SHIPPED_POLICY), "--out", "p.pt", "--perception", str(SHIPPED_TEACHER)],
+    (["export-policy", str(SHIPPED_POLICY), "--out", "p.pt", "--perception", str(SHIPPED_GROUND_TRUTH)],
      ["baoding_gt_policy.pt", "not a tacgnn perception checkpoint"]),
     (["export-policy", str(SHIPPED_POLICY), "--out", "/dev/null/p.pt"], ["/dev/null"]),
     (["make-dataset", "baoding", "--out", "unused", "--policy", str(SHIPPED_POLICY), "--set", "target_band_rad=0.2"],

@@ -322,7 +322,7 @@ def test_export_puts_another_perception_of_the_same_network_into_a_blind_policy(
     """perception_from: the exported blind policy acts with that checkpoint's weights (its actor
     unchanged); a ground-truth policy, or a perception of another network, is refused."""
     from tacgnn.learning.checkpoint import CheckpointError, load_policy_file
-    from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER, export_policy, load_perception
+    from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, SHIPPED_POLICY, export_policy, load_perception
     from tacgnn.perception.checkpoint import load_checkpoint as load_perception_checkpoint
 
     results = Path(__file__).resolve().parent.parent / "results"
@@ -335,7 +335,7 @@ def test_export_puts_another_perception_of_the_same_network_into_a_blind_policy(
     assert all(torch.equal(v, exported["actor_state_dict"][k]) for k, v in shipped["actor_state_dict"].items())
     assert exported["perception"]["config"]["pretrained"] == str(offline)
     with pytest.raises(ConfigError, match="without a perception"):
-        export_policy(SHIPPED_TEACHER, tmp_path / "gt.pt", perception_from=offline)
+        export_policy(SHIPPED_GROUND_TRUTH, tmp_path / "gt.pt", perception_from=offline)
     with pytest.raises(CheckpointError, match="differs .* in \\['temporal'"):
         export_policy(SHIPPED_POLICY, tmp_path / "x.pt",
                       perception_from=results / "real_hand" / "checkpoints" / "tacgnn32_skin_real.pt")

@@ -9,7 +9,7 @@ from tacgnn.config import override
 from tacgnn.envs.baoding import BaodingConfig
 from tacgnn.envs.randomization import RANGES, RandomizationConfig
 from tacgnn.learning import robustness
-from tacgnn.learning.policy import SHIPPED_TEACHER
+from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH
 
 
 def test_each_row_changes_one_thing_from_the_nominal_hand():
@@ -44,7 +44,7 @@ def test_an_interrupted_table_resumes_without_redoing_its_rows(tmp_path, monkeyp
 
     monkeypatch.setattr(robustness, "evaluate", fake_evaluate)
     out = tmp_path / "table.json"
-    args = [str(SHIPPED_TEACHER), "--episodes", "4", "--envs", "2", "--out", str(out)]
+    args = [str(SHIPPED_GROUND_TRUTH), "--episodes", "4", "--envs", "2", "--out", str(out)]
     with pytest.raises(Stopped):
         robustness.main(args)
     assert [r["row"] for r in json.loads(out.read_text())] == ["nominal", "damping x0.3"]
@@ -63,8 +63,8 @@ def test_robustness_names_bad_input(tmp_path, capsys):
     from tacgnn.cli import main
 
     (tmp_path / "a_file").write_text("")  # a folder cannot be made inside it, even by root
-    for args, named in ((["nowhere.pt"], "not found"), ([str(SHIPPED_TEACHER), "--episodes", "0"], "--episodes"),
-                        ([str(SHIPPED_TEACHER), "--out", str(tmp_path / "a_file" / "t.json")], "cannot")):
+    for args, named in ((["nowhere.pt"], "not found"), ([str(SHIPPED_GROUND_TRUTH), "--episodes", "0"], "--episodes"),
+                        ([str(SHIPPED_GROUND_TRUTH), "--out", str(tmp_path / "a_file" / "t.json")], "cannot")):
         assert main(["robustness", *args]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and named in err, err

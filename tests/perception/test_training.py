@@ -134,7 +134,7 @@ def test_a_run_can_start_from_the_perception_inside_a_blind_policy(tmp_path):
     """init_from a blind policy file: the model starts with the weights the policy acts with; a
     policy without a perception, or with another network, is refused, naming the file."""
     from tacgnn.config import from_dict
-    from tacgnn.learning.policy import SHIPPED_POLICY, SHIPPED_TEACHER
+    from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, SHIPPED_POLICY
     from tacgnn.perception.checkpoint import build_perception
     from tacgnn.perception.models import PerceptionModelConfig
     from tacgnn.perception.models.temporal import MemoryConfig
@@ -149,7 +149,7 @@ def test_a_run_can_start_from_the_perception_inside_a_blind_policy(tmp_path):
     start_from(model, cfg, str(SHIPPED_POLICY))
     assert all(torch.equal(model.state_dict()[k], v) for k, v in stored["model"].items())
     with pytest.raises(CheckpointError, match="init_from .*baoding_gt_policy.pt: a policy trained without"):
-        start_from(model, cfg, str(SHIPPED_TEACHER))
+        start_from(model, cfg, str(SHIPPED_GROUND_TRUTH))
     wider = PerceptionTrainConfig(task="baoding", temporal=True, split="episode", memory=cfg.memory,
                                   model=from_dict(PerceptionModelConfig, {**stored["config"]["model"], "channels": 64}))
     with pytest.raises(CheckpointError, match="differs in \\['model'\\]"):

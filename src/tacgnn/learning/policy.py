@@ -28,11 +28,10 @@ ASSETS = Path(__file__).resolve().parent.parent / "assets"
 SHIPPED_POLICY = ASSETS / "baoding_policy.pt"
 """The blind policy the demo and the real-hand controller run: Beta actions, a temporal TacGNN in the
 loop, trained on hands drawn as real ones differ and on the real skin (docs/results.md, section 11)."""
-SHIPPED_TEACHER = ASSETS / "baoding_gt_policy.pt"
+SHIPPED_GROUND_TRUTH = ASSETS / "baoding_gt_policy.pt"
 """The ground-truth policy shipped beside it: its actor reading the true ball positions
-(`export_policy(..., ground_truth=True)`), the teacher of datasets and the real hand's reference.
-The policy the blind one was trained from, trained by PPO on the true positions, is
-results/real_hand/checkpoints/gt_ppo.pt (`experiments/real_hand/pipeline.sh`)."""
+(`export_policy(..., ground_truth=True)`). The policy the blind one was trained from, trained by
+PPO on the true positions, is results/real_hand/checkpoints/gt_ppo.pt (`experiments/real_hand/pipeline.sh`)."""
 
 
 def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], BaodingConfig]:
