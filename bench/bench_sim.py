@@ -10,8 +10,8 @@ contacts and active taxels the table reports. ``--hand real`` runs the hand of t
 (`training_env_config`: randomised physics, latencies, encoder effects, the real skin and its
 calibration) with the skin observed, as a blind policy's env. ``--actions policy`` drives the
 fingers with the shipped ground-truth policy (acting on the true state; its episodes end as
-training's do, ~1 % of env steps reset), ``wave`` (the default) with the scripted finger wave,
-whose balls fall within ~30 steps: a reset-heavy load. The table gives the mean episode length.
+training's do, every 49-62 steps: an env in 50 resets each step), ``wave`` with the scripted finger
+wave (few contacts; its episodes run to the time limit). The table gives the mean episode length.
 """
 
 from __future__ import annotations
