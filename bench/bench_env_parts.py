@@ -5,8 +5,9 @@
 The hand of training (randomised, latencies, skin observed), driven by the shipped ground-truth
 policy (its episodes as in training, so resets every few steps). Each part is timed in CPU time
 (`time.process_time`, inclusive of what it calls), so time lost to other processes does not count;
-the physics' CPU time covers its 2 threads. Run with nothing else on the machine for wall-clock
-shares (`bench/bench_sim.py`).
+the physics' CPU time covers its 2 threads. The parts run in the serial order
+(`second_thread.ENABLED = False`: a part on the second thread would count the main thread's CPU too).
+Run with nothing else on the machine for wall-clock shares (`bench/bench_sim.py`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 from tacgnn.envs import baoding, baoding_terms, randomization
 from tacgnn.envs.baoding import BaodingEnv, training_env_config
 from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, load_policy
-from tacgnn.sim import skin_signal, tactile
+from tacgnn.sim import second_thread, skin_signal, tactile
 from tacgnn.user_errors import run_script
 
 PARTS = ((skin_signal.SkinSignal, "reset", "reset: skin draw and calibration"),
@@ -52,6 +53,7 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=256)
     parser.add_argument("--steps", type=int, default=200)
     args = parser.parse_args()
+    second_thread.ENABLED = False
     spent: dict[str, float] = defaultdict(float)
     for owner, name, label in PARTS:
         setattr(owner, name, timed(spent, label, getattr(owner, name)))

@@ -4,7 +4,8 @@ Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200] [--ha
 Prints one table; docs/results.md quotes it. Targets: env >= 80 % of the raw
 physics rate, >= 10,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
 "env/physics" is the share of an env step spent in MuJoCo (the physics rate the env
-keeps); "raw replay" steps the same batch with the same controls and nothing else. The
+keeps; the env's own work partly on a second thread, `tacgnn.sim.second_thread`); "raw replay"
+steps the same batch with the same controls and nothing else. The
 skin (readings with noise, positions) is timed on the env run's last state, the one whose
 contacts and active taxels the table reports. ``--hand real`` runs the hand of training
 (`training_env_config`: randomised physics, latencies, encoder effects, the real skin and its
@@ -121,7 +122,7 @@ def main() -> None:
             for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
-    fmt = {"env/physics": "{:.2f}"}
+    fmt = {"env/physics": "{:.3f}"}
     for row in rows:
         cells = (fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k]) for k in keys)
         print(" | ".join(cells))

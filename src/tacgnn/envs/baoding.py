@@ -33,6 +33,7 @@ from tacgnn.envs.randomization import HandIO, RandomizationConfig, draw_ranges, 
 from tacgnn.hand.allegro import NUM_JOINTS
 from tacgnn.sim.backend import SkinArray, skin_positions, skin_readings
 from tacgnn.sim.scene import add_sphere, hand_scene, palm_frame, sphere_inertia
+from tacgnn.sim.second_thread import beside
 from tacgnn.sim.skin_ring import SkinRing
 from tacgnn.sim.skin_signal import SkinSignal
 
@@ -70,6 +71,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         cfg = config or BaodingConfig()
         self.config = cfg
         self._obs_uses_skin = cfg.obs_mode in ("tactile", "perceived")
+        self._on_device = cfg.sim.backend == "warp"  # its arrays stay with this thread (no `beside`)
         spec = hand_scene(cfg.hand, cfg.sim)
         for name, offset, rgba in zip(BALLS, cfg.spawn_offsets, ((0.85, 0.3, 0.2, 1), (0.2, 0.4, 0.85, 1))):
             add_sphere(spec, name, cfg.ball_radius, cfg.ball_mass, offset, cfg.ball_friction, rgba)
@@ -168,12 +170,12 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         them on demand from `taxel_positions()`, same instant until the next step)."""
         if not self.config.tactile:
             return None, None
+        positions = beside(skin_positions, self.tactile, self.sim, ids, inline=self._on_device) \
+            if self._obs_uses_skin else None  # a matrix product, beside the readings
         readings = skin_readings(self.tactile, self.sim, ids, self._rng)  # on Warp: from the device arrays
         if not self.config.skin_signal.is_ideal:  # what a real skin and its calibration make of it
             readings = self.skin_signal(self.skin_to_host(readings), ids, self._rng)
-        if not self._obs_uses_skin:
-            return readings, None
-        return readings, skin_positions(self.tactile, self.sim, ids)
+        return readings, None if positions is None else positions.result()
 
     # --- random streams ----------------------------------------------------------------
     def _seed(self, seed: int | None) -> None:
@@ -341,6 +343,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             self._scrub(diverged)
         self.hand_io.observe(self.joint_pos, self.joint_vel, self._rng)
         tactile, taxel_pos = self._skin(all_ids)
+        late = beside(self._late_skin, all_ids, tactile, taxel_pos, inline=self._on_device)  # beside the rules
         balls = self.ball_positions()
         flat = balls.reshape(self.num_envs, 6)
         self.true_velocity[:] = (flat - self.true_balls) / cfg.control_dt
@@ -368,12 +371,13 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             info["joint_pos"] = self.sim.qpos[:, self.joint_qpos_adr]  # rad, beside each frame of the skin
         if taxel_pos is not None:
             info["taxel_pos"] = taxel_pos
-        obs = self._observe(all_ids, *self._late_skin(all_ids, tactile, taxel_pos))
+        obs = self._observe(all_ids, *late.result())
         done = np.flatnonzero(terminated | truncated)
         if len(done):
             info["final_obs"], info["_final_obs"] = obs, terminated | truncated
-            obs = terms.copy_obs(obs)
+            copied = beside(terms.copy_obs, obs, inline=self._on_device)  # beside the resets (not touching obs)
             self._reset_envs(done)
+            obs = copied.result()
             new_tactile, new_pos = self._late_skin(done, *self._skin(done), fresh=True) \
                 if self._obs_uses_skin else (None, None)
             terms.assign_obs(obs, done, self._observe(done, new_tactile, new_pos))
