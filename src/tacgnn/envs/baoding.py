@@ -118,6 +118,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self._nominal_torque_limit = np.asarray(cfg.hand.joint_torque_limit())  # the effort cost's unit
         late = self.hand_io.skin_frames if self._obs_uses_skin and cfg.randomization.enabled else 0
         self._skin_ring = SkinRing(n, late + 1, self.tactile.num_taxels) if late else None
+        self._inline_ring = self._skin_ring is None or self._on_device  # nothing to push, or a device's arrays
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -154,9 +155,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
 
     def skin_frames_late(self) -> np.ndarray:
         """(N,) how many control steps old the skin frame each env's observation shows is (0: this step's)."""
-        if self._skin_ring is None:
-            return np.zeros(self.num_envs, np.int64)
-        return self.hand_io.skin_delay.copy()
+        return np.zeros(self.num_envs, np.int64) if self._skin_ring is None else self.hand_io.skin_delay.copy()
 
     def raw_skin(self) -> np.ndarray:
         """(N, T) what the skin's driver reports now, before any calibration: the real skin's raw
@@ -343,7 +342,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             self._scrub(diverged)
         self.hand_io.observe(self.joint_pos, self.joint_vel, self._rng)
         tactile, taxel_pos = self._skin(all_ids)
-        late = beside(self._late_skin, all_ids, tactile, taxel_pos, inline=self._on_device)  # beside the rules
+        late = beside(self._late_skin, all_ids, tactile, taxel_pos, inline=self._inline_ring)  # beside the rules
         balls = self.ball_positions()
         flat = balls.reshape(self.num_envs, 6)
         self.true_velocity[:] = (flat - self.true_balls) / cfg.control_dt
@@ -375,7 +374,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         done = np.flatnonzero(terminated | truncated)
         if len(done):
             info["final_obs"], info["_final_obs"] = obs, terminated | truncated
-            copied = beside(terms.copy_obs, obs, inline=self._on_device)  # beside the resets (not touching obs)
+            copied = beside(terms.copy_obs, obs, inline=not self._obs_uses_skin or self._on_device)  # beside the resets
             self._reset_envs(done)
             obs = copied.result()
             new_tactile, new_pos = self._late_skin(done, *self._skin(done), fresh=True) \
