@@ -118,7 +118,6 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         self._nominal_torque_limit = np.asarray(cfg.hand.joint_torque_limit())  # the effort cost's unit
         late = self.hand_io.skin_frames if self._obs_uses_skin and cfg.randomization.enabled else 0
         self._skin_ring = SkinRing(n, late + 1, self.tactile.num_taxels) if late else None
-        self._inline_ring = self._skin_ring is None or self._on_device  # nothing to push, or a device's arrays
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, (NUM_JOINTS,), np.float32)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, n)
@@ -342,7 +341,8 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             self._scrub(diverged)
         self.hand_io.observe(self.joint_pos, self.joint_vel, self._rng)
         tactile, taxel_pos = self._skin(all_ids)
-        late = beside(self._late_skin, all_ids, tactile, taxel_pos, inline=self._inline_ring)  # beside the rules
+        late = beside(self._late_skin, all_ids, tactile, taxel_pos,  # the ring, beside the rules
+                      inline=self._skin_ring is None or self._on_device)
         balls = self.ball_positions()
         flat = balls.reshape(self.num_envs, 6)
         self.true_velocity[:] = (flat - self.true_balls) / cfg.control_dt

@@ -116,7 +116,7 @@ def export_policy(path: str | Path, out: str | Path, perception_from: str | Path
         raise ConfigError("a ground-truth export reads the true ball positions: it takes no perception")
     slim = {"format_version": ckpt.FORMAT_VERSION, "kind": "policy", "iteration": data["iteration"],
             **{k: data[k] for k in ckpt.POLICY_KEYS}}
-    if "perception" in data:
+    if "perception" in data and not ground_truth:  # a ground-truth export reads no perception
         perception = dict(data["perception"])
         for training_only in ("optimizer", "generator", "steps_seen"):
             perception.pop(training_only, None)
@@ -133,7 +133,6 @@ def export_policy(path: str | Path, out: str | Path, perception_from: str | Path
         slim["perception"] = {**slim["perception"], "model": payload["model"],
                               "config": {**ours, "pretrained": str(perception_from)}}
     if ground_truth:
-        del slim["perception"]
         slim["env_config"] = {**slim["env_config"], "obs_mode": "groundtruth", "tactile": False}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
