@@ -21,14 +21,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from tacgnn.config import override
 from tacgnn.envs.baoding import BaodingEnv
 from tacgnn.files import atomic_write_text, check_writable
 from tacgnn.learning import checkpoint as ckpt
-from tacgnn.learning.evaluate import PERCEPTION_FROM_STEP
+from tacgnn.learning.evaluate import PERCEPTION_FROM_STEP, matched_ball_errors
 from tacgnn.learning.policy import perception_from_checkpoint, policy_from_checkpoint
 from tacgnn.perception.evaluation import TOUCH_WITHIN_CM
+from tacgnn.perception.sequences import touched_balls
 from tacgnn.provenance import provenance
 from tacgnn.user_errors import run_script
 
@@ -40,18 +42,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
-def touched_balls(readings: np.ndarray, taxel_pos: np.ndarray, balls: np.ndarray) -> np.ndarray:
-    """(N, 2) whether an activated taxel lies within TOUCH_WITHIN_CM of each ball's centre."""
-    near = np.linalg.norm(taxel_pos[:, None] - balls[:, :, None], axis=-1) < TOUCH_WITHIN_CM / 100  # (N, 2, T)
-    return (near & (readings[:, None] > 0)).any(-1)
-
-
-def matched(perceived: np.ndarray, true: np.ndarray) -> np.ndarray:
-    """(F, 2) squared errors (m^2) of each ball, in each frame's better ball order (as `evaluate`)."""
-    p, t = perceived.reshape(-1, 2, 3), true.reshape(-1, 2, 3)
-    same = ((p - t) ** 2).sum(-1)
-    swapped = ((p - t[:, ::-1]) ** 2).sum(-1)
-    return np.where((same.sum(1) <= swapped.sum(1))[:, None], same, swapped)
+def touched(readings: np.ndarray, taxel_pos: np.ndarray, balls: np.ndarray) -> np.ndarray:
+    """(N, 2) whether the skin touches each ball, as the perception's evaluation counts it (positions in m)."""
+    return touched_balls(torch.from_numpy(readings), torch.from_numpy(taxel_pos * 100),
+                         torch.from_numpy(balls * 100), TOUCH_WITHIN_CM).numpy()
 
 
 def run(checkpoint: str, overrides: dict[str, Any], episodes: int, num_envs: int, seed: int) -> dict[str, Any]:
@@ -72,12 +66,12 @@ def run(checkpoint: str, overrides: dict[str, Any], episodes: int, num_envs: int
         now = info["ball_pos"].reshape(num_envs, 6)
         history = [now.copy()] + history[:-1]
         going = ~(terminated | truncated) & (info["episode_steps"] >= PERCEPTION_FROM_STEP)
-        errors = matched(env.perceived_balls[going], now[going])
-        touch = touched_balls(info["tactile"][going], info["taxel_pos"][going], info["ball_pos"][going])
+        errors = matched_ball_errors(env.perceived_balls[going], now[going])
+        touch = touched(info["tactile"][going], info["taxel_pos"][going], now[going])
         delay = env.skin_frames_late()[going]
         seen = np.stack(history)[delay, np.flatnonzero(going)]  # the true positions at the frame's instant
         for name, values in (("all", errors), ("touched", errors[touch]), ("untouched", errors[~touch]),
-                             ("latency floor", matched(seen, now[going]))):
+                             ("latency floor", matched_ball_errors(seen, now[going]))):
             sums[name][0] += float(values.sum())
             sums[name][1] += values.size
         done = np.flatnonzero(terminated | truncated)

@@ -193,10 +193,17 @@ def evaluate(checkpoint: str | Path, task: Literal["simple", "middle", "hard", "
     }
 
 
+def matched_ball_errors(perceived: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """(F, 2) squared errors (m^2) of each ball of (F, 6) ball positions, each frame in the better ball
+    order (the balls look alike)."""
+    p, t = perceived.reshape(-1, 2, 3), true.reshape(-1, 2, 3)
+    same, swapped = ((p - t) ** 2).sum(-1), ((p - t[:, ::-1]) ** 2).sum(-1)
+    return np.where((same.sum(1) <= swapped.sum(1))[:, None], same, swapped)
+
+
 def matched_squared_error(perceived: np.ndarray, true: np.ndarray) -> float:
     """Sum of squared coordinate errors (m^2) of (F, 6) ball positions, each frame in the better ball order."""
-    swapped = np.concatenate([true[:, 3:], true[:, :3]], 1)
-    return float(np.minimum(((perceived - true) ** 2).sum(1), ((perceived - swapped) ** 2).sum(1)).sum())
+    return float(matched_ball_errors(perceived, true).sum())
 
 
 def _turns(turns: np.ndarray) -> dict[str, Any]:

@@ -208,17 +208,25 @@ def burn_in_rows(data: SequenceData, starts: torch.Tensor, burn_in: int) -> tupl
 
 
 def touched(data: TactileData, within_cm: float = 3.0) -> torch.Tensor:
+    """(N, 2) bool: an activated taxel lies within `within_cm` of the ball's centre (`touched_balls`)."""
+    return touched_balls(data.readings, data.positions, data.targets, within_cm)
+
+
+def touched_balls(readings: torch.Tensor, positions: torch.Tensor, balls: torch.Tensor,
+                  within_cm: float = 3.0) -> torch.Tensor:
     """(N, 2) bool: an activated taxel lies within `within_cm` of the ball's centre.
 
     The balls' radius is 2.625 cm: 3 cm counts taxels pressed by the ball (their positions
     are on the skin's surface, up to a few mm inside the ball's surface under load) and
     none pressed by the other ball (centres >= 5.25 cm apart).
+
+    Shapes: readings (N, T), positions (N, T, 3) cm, balls (N, 6) cm -> (N, 2).
     """
-    active = data.readings > 0
+    active = readings > 0
     out = []
     for b in range(2):
-        centre = data.targets[:, None, 3 * b:3 * b + 3]
-        dist = (data.positions - centre).norm(dim=-1).masked_fill(~active, float("inf"))
+        centre = balls[:, None, 3 * b:3 * b + 3]
+        dist = (positions - centre).norm(dim=-1).masked_fill(~active, float("inf"))
         out.append(dist.amin(1) < within_cm)
     return torch.stack(out, 1)
 
