@@ -159,7 +159,7 @@ def test_the_compiled_chain_is_the_numpy_chain_to_the_bit():
 @pytest.mark.parametrize("config", [SkinSignalConfig(), replace(SkinSignalConfig(), noise_floor=0.5, quantisation=0.0,
                                                                     dead_fraction=(0.2, 0.5), baseline_tracking=0.0)])
 def test_the_compiled_calibration_is_the_numpy_one_to_the_bit(config):
-    """A reset's rest frames run compiled in the env; the numpy path is their reference: every
+    """A reset's draws and rest frames run compiled in the env; the numpy path is their reference: every
     skin's state and every stream agree exactly."""
     compiled, reference = SkinSignal(config, LAYOUT, 9, 0.02), SkinSignal(config, LAYOUT, 9, 0.02)
     reference.use_compiled = False
