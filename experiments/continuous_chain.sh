@@ -9,7 +9,8 @@
 # Environment: SETTINGS, env settings added to every stage (e.g. 'hand.target_ranges=[...]'), with
 # TAG naming the runs runs/gt_TAG_s0, runs/gt_cont_canon_TAG_s0, ...; SEED, the training seed of
 # every stage (default 0; the runs end in _sSEED).
-# Every stage skips what exists and resumes what was cut off, so the script can be rerun.
+# Every stage runs on the nominal hand (`randomization.enabled=false`: train-policy's default is the hand
+# of training, section 11). Every stage skips what exists and resumes what was cut off, so the script can be rerun.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 T=.venv/bin/tacgnn
@@ -25,10 +26,11 @@ stage() {
 SEED=${SEED:-0}
 # run NAME: the run directory of stage NAME
 run() { echo runs/$1${TAG:+_$TAG}_s$SEED; }
-CONT="task=continuous ball_order=canonical ${SETTINGS:-}"
+NOMINAL="randomization.enabled=false ${SETTINGS:-}"
+CONT="task=continuous ball_order=canonical $NOMINAL"
 ALIVE="$CONT reward.alive=1.0 reward.fall=-200"
 FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed seed=$SEED"
-train_gt $(run gt) 250 "" "${SETTINGS:-}" "save_interval=100 seed=$SEED"
+train_gt $(run gt) 250 "" "$NOMINAL" "save_interval=100 seed=$SEED"
 stage $(run gt_cont_canon) 600 $(last $(run gt) 250) "$CONT" "$FINE"
 stage $(run gt_cont_alive) 600 $(last $(run gt_cont_canon) 600) "$ALIVE" "$FINE"
 stage $(run gt_cont_long) 1500 $(last $(run gt_cont_alive) 600) "$ALIVE" "$FINE"
