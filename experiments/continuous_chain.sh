@@ -9,8 +9,9 @@
 # Environment: SETTINGS, env settings added to every stage (e.g. 'hand.target_ranges=[...]'), with
 # TAG naming the runs runs/gt_TAG_s0, runs/gt_cont_canon_TAG_s0, ...; SEED, the training seed of
 # every stage (default 0; the runs end in _sSEED).
-# Every stage runs on the nominal hand (`randomization.enabled=false`: train-policy's default is the hand
-# of training, section 11). Every stage skips what exists and resumes what was cut off, so the script can be rerun.
+# Every stage runs on the nominal hand without the action-rate and effort costs, as the chain was made
+# (`randomization.enabled=false reward.action_rate=0 reward.effort=0`: train-policy's defaults are the hand
+# of training and the gentle costs of section 11, under which the later stages drop balls in 10-70 %). Every stage skips what exists and resumes what was cut off, so the script can be rerun.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 T=.venv/bin/tacgnn
@@ -26,7 +27,7 @@ stage() {
 SEED=${SEED:-0}
 # run NAME: the run directory of stage NAME
 run() { echo runs/$1${TAG:+_$TAG}_s$SEED; }
-NOMINAL="randomization.enabled=false ${SETTINGS:-}"
+NOMINAL="randomization.enabled=false reward.action_rate=0 reward.effort=0 ${SETTINGS:-}"
 CONT="task=continuous ball_order=canonical $NOMINAL"
 ALIVE="$CONT reward.alive=1.0 reward.fall=-200"
 FINE="init_noise_std=0.3 learning_rate=0.0003 schedule=fixed seed=$SEED"
