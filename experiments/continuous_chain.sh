@@ -11,7 +11,8 @@
 # every stage (default 0; the runs end in _sSEED).
 # Every stage runs on the nominal hand without the action-rate and effort costs, as the chain was made
 # (`randomization.enabled=false reward.action_rate=0 reward.effort=0`: train-policy's defaults are the hand
-# of training and the gentle costs of section 11, under which the later stages drop balls in 10-70 %). Every stage skips what exists and resumes what was cut off, so the script can be rerun.
+# of training and the gentle costs of section 11, under which the later stages drop balls in 10-70 %).
+# Every stage skips what exists and resumes what was cut off, so the script can be rerun.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 T=.venv/bin/tacgnn
