@@ -250,3 +250,17 @@ def test_a_target_band_keeps_the_motors_off_their_torque_limit():
 def test_a_negative_target_band_names_its_key():
     with pytest.raises(ConfigError, match="target_band_rad"):
         override(CFG, {"target_band_rad": -0.1})
+
+
+def test_targets_that_switch_inside_a_step_give_the_same_physics_in_one_engine_call():
+    """A latency between control steps steps the physics in one call with a control per physics
+    step (`BatchedSim.step_controls`); the per-substep path (taken for `reward.squeeze_peak`) sets
+    the controls and steps one physics step at a time. The same trajectory, bit for bit."""
+    actions = np.random.default_rng(2).uniform(-1, 1, (10, 8, 16))
+    late = RandomizationConfig.nominal(CFG.ball_mass, action_latency=(0.01, 0.01))
+    cfg = replace(CFG, randomization=late)
+    one_call, joints = rollout(cfg, actions)
+    per_substep, joints_per_substep = rollout(replace(cfg, reward=replace(cfg.reward, squeeze_peak=True)), actions)
+    assert np.array_equal(joints, joints_per_substep)
+    assert np.array_equal(one_call.sim.batch.state, per_substep.sim.batch.state)
+    assert not np.array_equal(joints[1:], joints[:-1])  # the hand moved

@@ -431,13 +431,17 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         slot's largest over the substeps.
 
         The targets of `hand_io` reach the motors whole control steps at a time, unless an action
-        latency makes them arrive between physics steps: then (and for the peak forces) the physics
-        is stepped one substep per call (the same trajectory, a little slower).
+        latency makes them arrive between physics steps: then each physics step gets its own
+        (one call to the engine). For the peak forces the physics is stepped one substep per call
+        (the same trajectory, a little slower).
         """
         sim, io, peak_wanted = self.sim, self.hand_io, self.config.reward.squeeze_peak
-        if not io.has_latency and not peak_wanted:
-            sim.ctrl[:] = io.target_at(0)
-            return sim.step(self.substeps), self.ball_contact_forces()
+        if not peak_wanted:
+            if not io.has_latency:
+                sim.ctrl[:] = io.target_at(0)
+                return sim.step(self.substeps), self.ball_contact_forces()
+            controls = np.stack([io.target_at(substep) for substep in range(self.substeps)], axis=1)
+            return sim.step_controls(controls), self.ball_contact_forces()
         diverged = np.zeros(self.num_envs, bool)
         # forces are >= 0, zeros_like keeps their layout (the cost's sums follow it); else the last substep's
         peak = np.zeros_like(self.ball_contact_forces()) if peak_wanted else None

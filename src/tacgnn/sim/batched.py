@@ -11,6 +11,7 @@ which MuJoCo would otherwise reset silently.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import mujoco
 import numpy as np
@@ -85,9 +86,23 @@ class BatchedSim:
         A diverged env (MuJoCo error, non-finite state or a body faster than
         `max_speed`) is logged; its state is meaningless until the caller resets it.
         """
+        return self._advance(lambda: self.batch.step(nstep=nstep))
+
+    def step_controls(self, controls: np.ndarray) -> np.ndarray:
+        """Advance every env by ``controls.shape[1]`` physics steps, holding ``controls[:, k]`` (N,
+        nstep, nu) during step k; return the diverged mask as `step` does.
+
+        Bit for bit the same as setting `ctrl` and calling ``step(1)`` per substep, in one call to
+        the thread pool instead of one per substep (for controls that change between physics
+        steps: action latency).
+        """
+        return self._advance(lambda: self.batch.rollout(controls.shape[1], control=controls, record=()))
+
+    def _advance(self, run: Callable[[], object]) -> np.ndarray:
+        """Run the engine call `run`; the (N,) mask of envs that failed in it or diverged."""
         failed = np.zeros(self.num_envs, bool)
         try:
-            self.batch.step(nstep=nstep)
+            run()
         except mjbatch.SimulationError as err:
             failed[err.ids] = True
             log.warning("MuJoCo error in envs %s: %s", err.ids.tolist(), err)

@@ -382,6 +382,14 @@ class WarpSim:
             log.warning("simulation diverged in envs %s; they will be reset", np.flatnonzero(bad).tolist())
         return bad
 
+    def step_controls(self, controls: np.ndarray) -> np.ndarray:
+        """Step k with ``ctrl = controls[:, k]`` (N, nstep, nu), one physics step at a time."""
+        bad = np.zeros(self.num_envs, bool)
+        for k in range(controls.shape[1]):
+            self.ctrl[:] = controls[:, k]
+            bad |= self.step(1)
+        return bad
+
     def _overflowed(self) -> np.ndarray:
         """(N,) envs whose step lost constraint rows; raise if the shared contact pool overflowed.
 
