@@ -23,14 +23,16 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+import torch
 
 from tacgnn.envs.baoding import BaodingConfig, BaodingEnv, training_env_config
 from tacgnn.envs.scripted import FingerWave
+from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, load_policy
 from tacgnn.user_errors import run_script
 
 
-def timed(fn, repeats: int) -> float:
+def timed_repeats(fn, repeats: int) -> float:
     start = time.perf_counter()
     for _ in range(repeats):
         fn()
@@ -52,6 +54,7 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
     act = None
     if drive == "policy":  # the shipped ground truth; its actions mean what they meant in training
+        torch.set_num_threads(PPOConfig().torch_threads)  # as in training: torch's idle threads spin
         act, trained = load_policy(SHIPPED_GROUND_TRUTH)
         cfg = replace(cfg, target_band_rad=trained.target_band_rad)
     env = BaodingEnv(cfg)
@@ -60,39 +63,49 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
     for _ in range(20):  # warm up, get contacts going
         env.step(next_actions())
 
-    # time the physics inside the env run: same states, same contacts, same resets
-    physics = [0.0]
-    sim_step = env.sim.step
+    # time the physics inside the env run (same states, same contacts, same resets), and keep the
+    # state each engine call starts from for the raw replay; the copies are not counted as the env's
+    sim = env.sim
+    physics, instrument, starts = [0.0], [0.0], []
 
-    def timed_sim_step(nstep):
-        start = time.perf_counter()
-        out = sim_step(nstep)
-        physics[0] += time.perf_counter() - start
-        return out
+    def timed(engine_call):
+        def call(*args):
+            start = time.perf_counter()
+            starts.append(sim.batch.state.copy())
+            copied = time.perf_counter()
+            out = engine_call(*args)
+            physics[0] += time.perf_counter() - copied
+            instrument[0] += copied - start
+            return out
+        return call
 
-    env.sim.step = timed_sim_step
-    env_time, ended, actions = 0.0, 0, []
+    step, step_controls = sim.step, sim.step_controls
+    sim.step, sim.step_controls = timed(step), timed(step_controls)  # type: ignore[method-assign]
+    env_time, ended = 0.0, 0
     for _ in range(steps):
-        actions.append(next_actions())
+        actions = next_actions()
         start = time.perf_counter()
-        _, _, terminated, truncated, _ = env.step(actions[-1])
+        _, _, terminated, truncated, _ = env.step(actions)
         env_time += time.perf_counter() - start
         ended += int((terminated | truncated).sum())
-    env.sim.step = sim_step
+    env_time -= instrument[0]
+    if len(starts) != steps:
+        raise SystemExit(f"expected one engine call per env step, got {len(starts)} for {steps} (reward.squeeze_peak?)")
+    sim.step, sim.step_controls = step, step_controls  # type: ignore[method-assign]
     contacts = (env.tactile.contacts(env.sim.sensordata)[0] > 0).sum((1, 2)).mean()
     active = (env.tactile_readings() > 0).sum(1).mean()
-    readings_time = timed(env.tactile_readings, steps)
-    positions_time = timed(env.taxel_positions, steps)
+    readings_time = timed_repeats(env.tactile_readings, steps)
+    positions_time = timed_repeats(env.taxel_positions, steps)
 
-    # raw physics alone, replaying the same controls (no resets: balls may leave the hand)
-    sim = env.sim
-    it = iter(actions)
-
-    def raw_step():
-        sim.ctrl[:] = env.action_to_ctrl(next(it))
-        sim_step(env.substeps)
-
-    raw_time = timed(raw_step, steps)
+    # the raw physics: the engine alone, from each state the env's steps started from, a whole
+    # control step in one call with the controls of its first physics step (what stepping the
+    # model costs on this workload, without latency, skin, observations or resets)
+    raw_time = 0.0
+    for state in starts:
+        sim.batch.state[...] = state
+        start = time.perf_counter()
+        step(env.substeps)
+        raw_time += time.perf_counter() - start
     n = num_envs * steps
     return {
         "hand": hand, "actions": drive, "envs": num_envs, "threads": nthread,
@@ -100,7 +113,8 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
         "physics steps/s in env": n * env.substeps / physics[0],
         "env physics steps/s": n * env.substeps / env_time,
         "env/physics": physics[0] / env_time,
-        "raw replay steps/s": n * env.substeps / raw_time,
+        "raw steps/s": n * env.substeps / raw_time,
+        "env/raw": raw_time / env_time,
         "readings us/step": 1e6 * readings_time / n,
         "positions us/step": 1e6 * positions_time / n,
         "contacts/env": contacts, "active taxels/env": active, "steps/episode": n / max(ended, 1),
@@ -122,7 +136,7 @@ def main() -> None:
             for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
-    fmt = {"env/physics": "{:.3f}"}
+    fmt = {"env/physics": "{:.3f}", "env/raw": "{:.3f}"}
     for row in rows:
         cells = (fmt.get(k, "{:.1f}").format(row[k]) if isinstance(row[k], float) else str(row[k]) for k in keys)
         print(" | ".join(cells))
