@@ -1,18 +1,21 @@
-"""Speed of the simulation: raw physics, the Baoding env with the skin on, the skin alone.
+"""Speed of the simulation: the Baoding env with the skin on against the raw physics of the same states.
 
 Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200] [--hand nominal|real]
-Prints one table; docs/results.md quotes it. Targets: env >= 80 % of the raw
-physics rate, >= 10,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
-"env/physics" is the share of an env step spent in MuJoCo (the physics rate the env
-keeps; the env's own work partly on a second thread, `tacgnn.sim.second_thread`); "raw replay"
-steps the same batch with the same controls and nothing else. The
-skin (readings with noise, positions) is timed on the env run's last state, the one whose
-contacts and active taxels the table reports. ``--hand real`` runs the hand of training
-(`training_env_config`: randomised physics, latencies, encoder effects, the real skin and its
-calibration) with the skin observed, as a blind policy's env. ``--actions policy`` drives the
-fingers with the shipped ground-truth policy (acting on the true state; its episodes end as
-training's do, every 49-62 steps: an env in 50 resets each step), ``wave`` with the scripted finger
-wave (few contacts; its episodes run to the time limit). The table gives the mean episode length.
+Prints one table; docs/results.md quotes it. Targets: env >= 80 % of the raw physics rate
+("env/raw"), >= 10,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
+"raw steps/s" replays the very states the env's steps started from, a control step per engine call
+with nothing between the calls (no latency, skin, observations, rules or resets): what stepping the
+model costs on this workload. "env/raw" is the env's physics steps/s over it, the issue's measure;
+"env/physics" is the share of an env step spent in MuJoCo (the physics timed inside the env, which
+also runs slower there than back to back). The env's own work runs partly on a second thread
+(`tacgnn.sim.second_thread`). The skin (readings with noise, positions) is timed on the env run's
+last state, the one whose contacts and active taxels the table reports. ``--hand real`` runs the
+hand of training (`training_env_config`: randomised physics, latencies, encoder effects, the real
+skin and its calibration) with the skin observed, as a blind policy's env. ``--actions policy``
+drives the fingers with the shipped ground-truth policy on training's torch threads (acting on the
+true state; its episodes end as training's do, every 49-62 steps: an env in 50 resets each step),
+``wave`` with the scripted finger wave (few contacts; its episodes run to the time limit). The
+table gives the mean episode length.
 """
 
 from __future__ import annotations
