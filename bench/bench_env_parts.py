@@ -19,8 +19,11 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
+import torch
+
 from tacgnn.envs import baoding, baoding_terms, randomization
 from tacgnn.envs.baoding import BaodingEnv, training_env_config
+from tacgnn.learning.config import PPOConfig
 from tacgnn.learning.policy import SHIPPED_GROUND_TRUTH, load_policy
 from tacgnn.sim import second_thread, skin_signal, tactile
 from tacgnn.user_errors import run_script
@@ -57,11 +60,13 @@ def main() -> None:
     spent: dict[str, float] = defaultdict(float)
     for owner, name, label in PARTS:
         setattr(owner, name, timed(spent, label, getattr(owner, name)))
+    torch.set_num_threads(PPOConfig().torch_threads)  # as in training: idle OpenMP threads spin, on CPU time
     act, trained = load_policy(SHIPPED_GROUND_TRUTH)
     cfg = replace(training_env_config(), obs_mode="tactile", num_envs=args.envs,
                   target_band_rad=trained.target_band_rad)
     env = BaodingEnv(cfg)
     env.sim.step = timed(spent, "physics", env.sim.step)
+    env.sim.step_controls = timed(spent, "physics", env.sim.step_controls)  # action latency's engine call
     env.reset(seed=0)
     for _ in range(20):  # warm up: contacts, compiled kernels
         env.step(act(env.groundtruth_obs()))
