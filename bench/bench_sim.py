@@ -51,13 +51,14 @@ def driver(env: BaodingEnv, act: Callable[[np.ndarray], np.ndarray] | None) -> C
 
 
 def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive: str = "wave",
-          nominal: BaodingConfig | None = None) -> dict:
-    """One row of the table; `nominal` replaces the nominal hand's config (e.g. another reward)."""
+          nominal: BaodingConfig | None = None, torch_threads: int | None = None) -> dict:
+    """One row of the table; `nominal` replaces the nominal hand's config (e.g. another reward);
+    the policy runs on `torch_threads` (None: training's)."""
     cfg = (nominal or BaodingConfig()) if hand == "nominal" else replace(training_env_config(), obs_mode="tactile")
     cfg = replace(cfg, num_envs=num_envs, sim=replace(cfg.sim, nthread=nthread))
     act = None
     if drive == "policy":  # the shipped ground truth; its actions mean what they meant in training
-        torch.set_num_threads(PPOConfig().torch_threads)  # as in training: torch's idle threads spin
+        torch.set_num_threads(torch_threads or PPOConfig().torch_threads)  # more: idle OpenMP threads spin
         act, trained = load_policy(SHIPPED_GROUND_TRUTH)
         cfg = replace(cfg, target_band_rad=trained.target_band_rad)
     env = BaodingEnv(cfg)
@@ -134,9 +135,12 @@ def main() -> None:
     parser.add_argument("--actions", choices=["wave", "policy"], nargs="+", default=["wave", "policy"],
                         help="the scripted finger wave (balls fall within ~30 steps), or the shipped "
                              "ground-truth policy (episodes as in training)")
+    parser.add_argument("--torch-threads", type=int, default=None,
+                        help="the policy's torch threads (default: training's, 1); 2 shows idle OpenMP "
+                             "threads spinning beside the physics")
     args = parser.parse_args()
-    rows = [bench(n, args.steps, t, h, a) for a in args.actions for h in args.hand for t in args.threads
-            for n in args.envs]
+    rows = [bench(n, args.steps, t, h, a, torch_threads=args.torch_threads)
+            for a in args.actions for h in args.hand for t in args.threads for n in args.envs]
     keys = list(rows[0])
     print(" | ".join(keys))
     fmt = {"env/physics": "{:.3f}", "env/raw": "{:.3f}"}
