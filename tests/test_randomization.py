@@ -264,3 +264,24 @@ def test_targets_that_switch_inside_a_step_give_the_same_physics_in_one_engine_c
     assert np.array_equal(joints, joints_per_substep)
     assert np.array_equal(one_call.sim.batch.state, per_substep.sim.batch.state)
     assert not np.array_equal(joints[1:], joints[:-1])  # the hand moved
+
+
+def test_a_warning_inside_a_step_of_switching_targets_steps_on_as_one_call_per_physics_step():
+    """A rollout stops a simulation at a MuJoCo warning (here a bad control, which `step` replaces
+    by 0 and steps on after): `step_controls` then steps the control step again, one physics step
+    per call, so the env with the warning ends where the per-step path leaves it."""
+    env = BaodingEnv(CFG)
+    env.reset(seed=0)
+    sim = env.sim
+    start = sim.batch.state.copy()
+    controls = np.repeat(sim.ctrl[:, None], 4, axis=1)
+    controls[1, 1, 0] = np.nan
+    diverged = sim.step_controls(controls)
+    one_call = sim.batch.state.copy()
+    sim.batch.state[...] = start
+    per_step = np.zeros(CFG.num_envs, bool)
+    for k in range(4):
+        sim.ctrl[:] = controls[:, k]
+        per_step |= sim.step(1)
+    assert np.array_equal(one_call, sim.batch.state) and np.array_equal(diverged, per_step)
+    assert sim.time[1] == sim.time[0] > 0  # env 1 stepped all four physics steps

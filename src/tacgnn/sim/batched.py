@@ -86,28 +86,49 @@ class BatchedSim:
         A diverged env (MuJoCo error, non-finite state or a body faster than
         `max_speed`) is logged; its state is meaningless until the caller resets it.
         """
-        return self._advance(lambda: self.batch.step(nstep=nstep))
+        failed = self._engine_call(lambda: self.batch.step(nstep=nstep))
+        return self._diverged(failed, self.qpos, self.qvel)
 
     def step_controls(self, controls: np.ndarray) -> np.ndarray:
         """Advance every env by ``controls.shape[1]`` physics steps, holding ``controls[:, k]`` (N,
-        nstep, nu) during step k; return the diverged mask as `step` does.
+        nstep, nu) during step k; return the diverged mask of `step` checked after every physics step.
 
-        Bit for bit the same as setting `ctrl` and calling ``step(1)`` per substep, in one call to
-        the thread pool instead of one per substep (for controls that change between physics
-        steps: action latency).
+        Bit for bit the same as setting `ctrl` and calling ``step(1)`` per physics step, in one call
+        to the thread pool (for controls that change between physics steps: action latency). A
+        rollout stops a simulation at a warning that stepping goes on after (a bad control, a full
+        contact buffer); then this control step is stepped again one physics step per call.
         """
-        return self._advance(lambda: self.batch.rollout(controls.shape[1], control=controls, record=()))
+        nstep, start, warned = controls.shape[1], self.batch.state.copy(), self.batch.warning.copy()
+        try:
+            records = self.batch.rollout(nstep, control=controls, record=("qpos", "qvel"))
+            if np.array_equal(self.batch.warning, warned):
+                return self._diverged(np.zeros(self.num_envs, bool), records["qpos"], records["qvel"])
+        except mjbatch.SimulationError:
+            pass  # stepped again below, which names the envs
+        self.batch.state[...] = start
+        diverged = np.zeros(self.num_envs, bool)
+        for k in range(nstep):
+            self.ctrl[:] = controls[:, k]
+            diverged |= self.step(1)
+        return diverged
 
-    def _advance(self, run: Callable[[], object]) -> np.ndarray:
-        """Run the engine call `run`; the (N,) mask of envs that failed in it or diverged."""
+    def _engine_call(self, run: Callable[[], object]) -> np.ndarray:
+        """Run the engine call `run`; the (N,) mask of envs MuJoCo raised in."""
         failed = np.zeros(self.num_envs, bool)
         try:
             run()
         except mjbatch.SimulationError as err:
             failed[err.ids] = True
             log.warning("MuJoCo error in envs %s: %s", err.ids.tolist(), err)
+        return failed
+
+    def _diverged(self, failed: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """`failed`, or non-finite `qpos` or a speed in `qvel` over `max_speed` ((N, ..., nq) and
+        (N, ..., nv): any physics step of an env), logged."""
+        n = self.num_envs
         # NaN fails every comparison: one test catches non-finite and runaway speeds
-        bad = failed | ~(np.abs(self.qvel).max(1, initial=0.0) <= self.max_speed) | ~np.isfinite(self.qpos).all(1)
+        bad = failed | ~(np.abs(qvel.reshape(n, -1)).max(1, initial=0.0) <= self.max_speed) \
+            | ~np.isfinite(qpos.reshape(n, -1)).all(1)
         if bad.any():
             log.warning("simulation diverged in envs %s; they will be reset", np.flatnonzero(bad).tolist())
         return bad
