@@ -79,6 +79,7 @@ def test_a_latency_between_control_steps_switches_targets_inside_the_step():
     io.push(np.ones((1, 16)))
     # 2 physics steps (10 ms) of the old target, then the new one
     assert [float(io.target_at(s)[0, 0]) for s in range(4)] == [0.0, 0.0, 1.0, 1.0]
+    assert io.targets_of_step()[0, :, 0].tolist() == [0.0, 0.0, 1.0, 1.0]  # all four at once
 
 
 def test_backlash_holds_the_reading_until_the_joint_has_crossed_half_the_band():

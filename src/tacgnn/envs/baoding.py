@@ -440,8 +440,7 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
             if not io.has_latency:
                 sim.ctrl[:] = io.target_at(0)
                 return sim.step(self.substeps), self.ball_contact_forces()
-            controls = np.stack([io.target_at(substep) for substep in range(self.substeps)], axis=1)
-            return sim.step_controls(controls), self.ball_contact_forces()
+            return sim.step_controls(io.targets_of_step()), self.ball_contact_forces()
         diverged = np.zeros(self.num_envs, bool)
         # forces are >= 0, zeros_like keeps their layout (the cost's sums follow it); else the last substep's
         peak = np.zeros_like(self.ball_contact_forces()) if peak_wanted else None

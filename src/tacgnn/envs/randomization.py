@@ -252,12 +252,20 @@ class HandIO:
         self.targets[:, 0] = target
 
     def target_at(self, substep: int) -> np.ndarray:
-        """(N, 16) targets the motors hold during physics step `substep` of this control step: the
-        newest that has arrived, sent ceil((delay - substep) / S) control steps ago."""
+        """(N, 16) targets the motors hold during physics step `substep` of this control step."""
+        return self.targets[:, 0] if not self.enabled else self._arrived(np.array([substep]))[:, 0]
+
+    def targets_of_step(self) -> np.ndarray:
+        """(N, S, 16) targets the motors hold during each physics step of this control step."""
         if not self.enabled:
-            return self.targets[:, 0]
-        back = np.maximum(0, -((substep - self.action_delay) // self.substeps))  # ceil((delay - s) / S)
-        return self.targets[np.arange(len(back)), np.minimum(back, self.history - 1)]
+            return np.repeat(self.targets[:, :1], self.substeps, axis=1)
+        return self._arrived(np.arange(self.substeps))
+
+    def _arrived(self, substeps: np.ndarray) -> np.ndarray:
+        """(N, len(substeps), 16): during each physics step in `substeps`, the newest target that has
+        arrived, sent ceil((delay - substep) / S) control steps ago."""
+        back = np.maximum(0, -((substeps[None, :] - self.action_delay[:, None]) // self.substeps))
+        return self.targets[np.arange(len(back))[:, None], np.minimum(back, self.history - 1)]
 
     def observe(self, q: np.ndarray, qd: np.ndarray, rng: np.random.Generator) -> None:
         """Advance the readings by one control step to the joints' true `q`, `qd` (N, 16)."""
