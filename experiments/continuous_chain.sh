@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The counter-clockwise continuous ground-truth policies of docs/results.md section 7, from scratch:
 # Simple (250 it.) -> canonical ball order (600) -> alive bonus, fall -200 (600) -> the long run
-# (1,500) -> rotation weight 1.0 (1,800) -> rotation weight 1.5, smaller step and noise (300; the
-# 9.0-turn policy), each evaluated over 128 episodes of 10 s (results/continuous/).
+# (1,500) -> rotation weight 1.0 (1,800) -> rotation weight 1.5, smaller step and noise (300), each
+# evaluated over 128 episodes of 10 s (results/continuous/; section 7 gives every stage of seeds 0 and 1).
 #
 #   experiments/continuous_chain.sh
 #

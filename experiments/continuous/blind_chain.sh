@@ -17,7 +17,7 @@
 #    evaluation seed 1 (the most turns at <= 5 % falls, else the fewest falls), exported with its perception
 #    to results/continuous/checkpoints/blind_sSEED.pt and scored once on seed 0 (128 episodes of 10 s)
 # Needs data/mix_random and data/mix_cont (experiments/perception_mix/record.sh). Every step skips what
-# exists and resumes what was cut off (make-dataset completes a dataset), so the script can be rerun. About 1 h on 2 cores.
+# exists and resumes what was cut off (make-dataset completes a dataset), so the script can be rerun. About 20 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 SEED=${1:-0}
