@@ -3,9 +3,9 @@
 Run: .venv/bin/python bench/bench_sim.py [--envs 64 128 256] [--steps 200] [--hand nominal|real]
 Prints one table; docs/results.md quotes it. Targets: env >= 80 % of the raw physics rate
 ("env/raw"), >= 10,000 env steps/s at 50 Hz with the skin on, skin < 5 us per env step.
-"raw steps/s" replays the very states the env's steps started from, a control step per engine call
-with nothing between the calls (no latency, skin, observations, rules or resets): what stepping the
-model costs on this workload. "env/raw" is the env's physics steps/s over it, the issue's measure;
+"raw steps/s" replays, right after each env step, the state that step started from, a control step in
+one engine call (no latency, skin, observations, rules or resets): what stepping the model costs on
+this workload at that moment. "env/raw" is the env's physics steps/s over it, the issue's measure;
 "env/physics" is the share of an env step spent in MuJoCo (the physics timed inside the env, which
 also runs slower there than back to back). The env's own work runs partly on a second thread
 (`tacgnn.sim.second_thread`). The skin (readings with noise, positions) is timed on the env run's
@@ -42,6 +42,20 @@ def timed_repeats(fn, repeats: int) -> float:
     return time.perf_counter() - start
 
 
+def raw_replay(sim, step: Callable[[int], np.ndarray], state: np.ndarray, substeps: int) -> float:
+    """Seconds the engine alone takes for one control step from `state` (one call, the controls the
+    state holds), timed beside the env step that started there; the env's state and its derived
+    fields are put back after."""
+    after = sim.batch.state.copy()
+    sim.batch.state[...] = state
+    start = time.perf_counter()
+    step(substeps)
+    seconds = time.perf_counter() - start
+    sim.batch.state[...] = after
+    sim.forward()  # the derived fields (poses the policy reads) of the env's own state again
+    return seconds
+
+
 def driver(env: BaodingEnv, act: Callable[[np.ndarray], np.ndarray] | None) -> Callable[[], np.ndarray]:
     """The next actions: the scripted wave's (`act` None), or a ground-truth policy's on the true state."""
     if act is None:
@@ -67,17 +81,17 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
     for _ in range(20):  # warm up, get contacts going
         env.step(next_actions())
 
-    # time the physics inside the env run (same states, same contacts, same resets), and keep the
-    # state each env step's physics starts from for the raw replay; the copies are not counted
+    # time the physics inside the env run (same states, same contacts, same resets); after each env
+    # step, the raw physics from the state that step's physics started from, then the env's state back
     sim = env.sim
     physics, instrument = [0.0], [0.0]
-    starts: list[np.ndarray] = []
+    start_state: list[np.ndarray] = []
 
     def timed(engine_call):
         def call(*args):
             start = time.perf_counter()
-            if len(starts) < len(actions):  # the step's first engine call (squeeze_peak makes one per substep)
-                starts.append(sim.batch.state.copy())
+            if not start_state:  # the step's first engine call (squeeze_peak makes one per substep)
+                start_state.append(sim.batch.state.copy())
             copied = time.perf_counter()
             out = engine_call(*args)
             physics[0] += time.perf_counter() - copied
@@ -87,30 +101,20 @@ def bench(num_envs: int, steps: int, nthread: int, hand: str = "nominal", drive:
 
     step, step_controls = sim.step, sim.step_controls
     sim.step, sim.step_controls = timed(step), timed(step_controls)
-    env_time, ended = 0.0, 0
-    actions: list[np.ndarray] = []
+    env_time, raw_time, ended = 0.0, 0.0, 0
     for _ in range(steps):
-        actions.append(next_actions())
+        actions = next_actions()
         start = time.perf_counter()
-        _, _, terminated, truncated, _ = env.step(actions[-1])
+        _, _, terminated, truncated, _ = env.step(actions)
         env_time += time.perf_counter() - start
         ended += int((terminated | truncated).sum())
+        raw_time += raw_replay(sim, step, start_state.pop(), env.substeps)
     env_time -= instrument[0]
     sim.step, sim.step_controls = step, step_controls
     contacts = (env.tactile.contacts(env.sim.sensordata)[0] > 0).sum((1, 2)).mean()
     active = (env.tactile_readings() > 0).sum(1).mean()
     readings_time = timed_repeats(env.tactile_readings, steps)
     positions_time = timed_repeats(env.taxel_positions, steps)
-
-    # the raw physics: the engine alone, from each state the env's steps started from, a whole
-    # control step in one call with the controls the state holds (what stepping the
-    # model costs on this workload, without latency, skin, observations or resets)
-    raw_time = 0.0
-    for state in starts:
-        sim.batch.state[...] = state
-        start = time.perf_counter()
-        step(env.substeps)
-        raw_time += time.perf_counter() - start
     n = num_envs * steps
     return {
         "hand": hand, "actions": drive, "envs": num_envs, "threads": nthread,
