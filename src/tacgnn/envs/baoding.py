@@ -435,21 +435,19 @@ class BaodingEnv(HandEnvBase, gym.vector.VectorEnv):
         (one call to the engine). For the peak forces the physics is stepped one substep per call
         (the same trajectory, a little slower).
         """
-        sim, io, peak_wanted = self.sim, self.hand_io, self.config.reward.squeeze_peak
-        if not peak_wanted:
-            if not io.has_latency:
-                sim.ctrl[:] = io.target_at(0)
-                return sim.step(self.substeps), self.ball_contact_forces()
-            return sim.step_controls(io.targets_of_step()), self.ball_contact_forces()
+        sim, io = self.sim, self.hand_io
+        if not self.config.reward.squeeze_peak:
+            if io.has_latency:
+                return sim.step_controls(io.targets_of_step()), self.ball_contact_forces()
+            sim.ctrl[:] = io.target_at(0)
+            return sim.step(self.substeps), self.ball_contact_forces()
         diverged = np.zeros(self.num_envs, bool)
-        # forces are >= 0, zeros_like keeps their layout (the cost's sums follow it); else the last substep's
-        peak = np.zeros_like(self.ball_contact_forces()) if peak_wanted else None
-        for substep in range(self.substeps):
-            sim.ctrl[:] = io.target_at(substep)
+        peak = np.zeros_like(self.ball_contact_forces())  # forces are >= 0; the cost's sums follow this layout
+        for controls in io.targets_of_step().transpose(1, 0, 2):
+            sim.ctrl[:] = controls
             diverged |= sim.step(1)
-            if peak is not None:
-                np.maximum(peak, self.ball_contact_forces(), out=peak)
-        return diverged, self.ball_contact_forces() if peak is None else peak
+            np.maximum(peak, self.ball_contact_forces(), out=peak)
+        return diverged, peak
 
     def _late_skin(self, ids: EnvIds, tactile: SkinArray | None, taxel_pos: SkinArray | None,
                    fresh: bool = False) -> tuple[SkinArray | None, SkinArray | None]:

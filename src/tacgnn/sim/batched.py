@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -106,11 +107,7 @@ class BatchedSim:
         except mjbatch.SimulationError:
             pass  # stepped again below, which names the envs
         self.batch.state[...] = start
-        diverged = np.zeros(self.num_envs, bool)
-        for k in range(nstep):
-            self.ctrl[:] = controls[:, k]
-            diverged |= self.step(1)
-        return diverged
+        return step_each(self, controls)
 
     def _engine_call(self, run: Callable[[], object]) -> np.ndarray:
         """Run the engine call `run`; the (N,) mask of envs MuJoCo raised in."""
@@ -132,3 +129,13 @@ class BatchedSim:
         if bad.any():
             log.warning("simulation diverged in envs %s; they will be reset", np.flatnonzero(bad).tolist())
         return bad
+
+
+def step_each(sim: Any, controls: np.ndarray) -> np.ndarray:
+    """Step a sim (`BatchedSim`, `WarpSim`) one physics step per call with ``ctrl = controls[:, k]``
+    (N, nstep, nu) during step k; the (N,) mask of envs that diverged in any of them."""
+    diverged = np.zeros(sim.num_envs, bool)
+    for k in range(controls.shape[1]):
+        sim.ctrl[:] = controls[:, k]
+        diverged |= sim.step(1)
+    return diverged

@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 
 from tacgnn.config import ConfigError
+from tacgnn.sim.batched import step_each
 
 log = logging.getLogger(__name__)
 
@@ -384,11 +385,7 @@ class WarpSim:
 
     def step_controls(self, controls: np.ndarray) -> np.ndarray:
         """Step k with ``ctrl = controls[:, k]`` (N, nstep, nu), one physics step at a time."""
-        bad = np.zeros(self.num_envs, bool)
-        for k in range(controls.shape[1]):
-            self.ctrl[:] = controls[:, k]
-            bad |= self.step(1)
-        return bad
+        return step_each(self, controls)
 
     def _overflowed(self) -> np.ndarray:
         """(N,) envs whose step lost constraint rows; raise if the shared contact pool overflowed.
