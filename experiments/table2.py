@@ -1,7 +1,7 @@
 """Table II: ball positions from the skin, every perception model on a teacher's frames.
 
     .venv/bin/python experiments/table2.py [--dataset data/table2] [--seeds 1] [--epochs 10]
-        [--models mlp cnn gcn tacgnn-32 tacgnn-64] [--max-samples N]
+        [--models mlp cnn gcn tacgnn-32 tacgnn-64] [--max-samples N] [--samples N]
 
 The dataset (recorded first, or completed if cut off: `RECORD`) is 50,000 frames of the committed
 ground-truth teacher on the 1 s hold task, the nominal hand and the default (real) skin, split
@@ -13,7 +13,8 @@ validation and test RMSE (cm), the test error of balls the skin touches and of b
 (no activated taxel within 3 cm of the centre), and the error with the palm's whole patch lost,
 with the run's provenance. Prints the table in markdown, the paper's figures beside ours.
 `--max-samples N` trains and scores on the first N frames only (the same split rule; names end
-in `_nN`): how the error falls with the data.
+in `_nN`): how the error falls with the data. `--samples N` records N frames instead of 50,000 (give it its own
+`--dataset`, and `--max-samples` to name the runs).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tacgnn.config import ConfigError
 from tacgnn.files import atomic_write_text
 from tacgnn.perception.checkpoint import load_checkpoint
 from tacgnn.perception.evaluation import patch_loss
@@ -39,12 +41,20 @@ PAPER = {"mlp": (0.230, 0.250), "cnn": (0.114, 27.76), "gcn": (0.130, 0.152), "t
          "tacgnn-64": (0.098, 0.085)}  # model: (train cm, test cm)
 ROOT = Path(__file__).resolve().parents[1]
 TEACHER = "results/perception_mix/checkpoints/teacher_hold.pt"
-RECORD = ["make-dataset", "baoding", "--policy", TEACHER, "--samples", "50000", "--settle-steps", "0", "--seed", "0",
-          "--set", "task=hold"]
+SAMPLES = 50_000
+
+
+def record(samples: int) -> list[str]:
+    """The make-dataset arguments of the Table II frames."""
+    return ["make-dataset", "baoding", "--policy", TEACHER, "--samples", str(samples), "--settle-steps", "0",
+            "--seed", "0", "--set", "task=hold"]
+
+
+
 VAL_FRACTION = 0.1
 
 
-def run(name: str, seed: int, dataset: Path, epochs: int, max_samples: int = 0) -> dict:
+def run(name: str, seed: int, dataset: Path, epochs: int, max_samples: int = 0, samples: int = SAMPLES) -> dict:
     model, _, channels = name.partition("-")
     cfg = PerceptionTrainConfig.for_task("baoding", model, epochs=epochs, seed=seed, val_fraction=VAL_FRACTION,
                                          max_samples=max_samples, model_kw={"channels": int(channels or 32)})
@@ -69,7 +79,7 @@ def run(name: str, seed: int, dataset: Path, epochs: int, max_samples: int = 0) 
               "palm_lost_rmse_ratio": test["rmse_ratio"], "paper_train_test_cm": PAPER.get(name),
               "provenance": provenance({"perception": kept.relative_to(ROOT)}, seed,
                                        {"epochs": epochs, "dataset": str(dataset), "val_fraction": VAL_FRACTION,
-                                        "max_samples": max_samples, "record": RECORD})}
+                                        "max_samples": max_samples, "record": record(samples)})}
     out = ROOT / "results" / "table2" / f"{tag}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out, json.dumps(result, indent=1))
@@ -83,14 +93,18 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=10)
     ap.add_argument("--models", nargs="+", default=list(PAPER), choices=list(PAPER))
     ap.add_argument("--max-samples", type=int, default=0, help="train and score on the first N frames (0: all)")
+    ap.add_argument("--samples", type=int, default=SAMPLES, help="frames to record in --dataset")
     args = ap.parse_args()
+    if args.samples != SAMPLES and not args.max_samples:
+        raise ConfigError(f"--samples {args.samples}: give --max-samples too (the runs' names)")
     # makes only the shards that are missing: a few seconds when the dataset is complete
-    subprocess.run([sys.executable, "-m", "tacgnn.cli", *RECORD, "--out", str(args.dataset)], check=True, cwd=ROOT)
+    subprocess.run([sys.executable, "-m", "tacgnn.cli", *record(args.samples), "--out", str(args.dataset)],
+                   check=True, cwd=ROOT)
     rows = ["| model | epoch | train (ours) | validation | test (ours) | touched | untouched | palm lost (x) "
             "| train (paper) | test (paper) |",
             "|---|---|---|---|---|---|---|---|---|---|"]
     for name in args.models:
-        res = [run(name, s, args.dataset, args.epochs, args.max_samples) for s in range(args.seeds)]
+        res = [run(name, s, args.dataset, args.epochs, args.max_samples, args.samples) for s in range(args.seeds)]
 
         def cell(key: str, res: list = res) -> str:
             v = [r[key] for r in res]
