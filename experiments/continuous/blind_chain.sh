@@ -10,14 +10,16 @@
 #    from itself on them with random motion beside (best.pt on validation episodes)
 # 1. from the teacher, that perception in the loop, trained there with random-motion windows as its anchor
 #    (200 it.), on the teacher's task and rewards (REWARDS: the alive-bonus stage's by default)
-# 2. its perception on the blind policy's own frames: 80,000 frames of that policy acting with it (every
-#    step kept), 6 epochs from itself with random motion and a teacher's continuous frames beside them
-#    (best.pt on validation episodes of the own frames)
-# 3. 100 it. more with that perception frozen in the loop (a checkpoint every 25), the checkpoint chosen on
-#    evaluation seed 1 (the most turns at <= 5 % falls, else the fewest falls), exported with its perception
-#    to results/continuous/checkpoints/blind_sSEED.pt and scored once on seed 0 (128 episodes of 10 s)
+# 2. two rounds of the policy's own frames (own_round below): 80,000 frames of the policy acting with its
+#    perception (every step kept), that perception trained 6 epochs from itself on them with random motion and
+#    a teacher's continuous frames beside (round 2: round 1's frames too; best.pt on validation episodes of the
+#    own frames), 100 it. more with it frozen in the loop (a checkpoint every 25), the checkpoint chosen on
+#    evaluation seed 1 (256 episodes: the most turns at <= 5 % falls, else the fewest falls); round 2 starts
+#    from round 1's choice
+# 3. round 2's choice exported with its perception to results/continuous/checkpoints/blind_sSEED.pt and scored
+#    once on seed 0 (256 episodes of 10 s)
 # Needs data/mix_random and data/mix_cont (experiments/perception_mix/record.sh). Every step skips what
-# exists and resumes what was cut off (make-dataset completes a dataset), so the script can be rerun. About 20 min on 2 cores.
+# exists and resumes what was cut off (make-dataset completes a dataset), so the script can be rerun. About 35 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 SEED=${1:-0}
