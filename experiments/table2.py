@@ -3,7 +3,7 @@
     .venv/bin/python experiments/table2.py [--dataset data/table2] [--seeds 1] [--epochs 10]
         [--models mlp cnn gcn tacgnn-32 tacgnn-64] [--max-samples N] [--samples N]
 
-The dataset (recorded first, or completed if cut off: `RECORD`) is 50,000 frames of the committed
+The dataset (recorded first, or completed if cut off: `record`) is 50,000 frames of the committed
 ground-truth teacher on the 1 s hold task, the nominal hand and the default (real) skin, split
 by frame 80/20 into training and test; a tenth of the training side is the validation split.
 Each model x seed trains under runs/table2/ (resumed when cut off); the epoch with the lowest
@@ -48,7 +48,6 @@ def record(samples: int) -> list[str]:
     """The make-dataset arguments of the Table II frames."""
     return ["make-dataset", "baoding", "--policy", TEACHER, "--samples", str(samples), "--settle-steps", "0",
             "--seed", "0", "--set", "task=hold"]
-
 
 
 VAL_FRACTION = 0.1
